@@ -1,0 +1,118 @@
+"""The scene every loader produces: frames of one monocular video, evaluation views, the body."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+from ..body.base import BodyModel
+from ..body.pose import BodyPose
+from ..camera import Camera
+
+
+@dataclass(frozen=True)
+class BodySpec:
+    """Which body model and shape: ``model`` ("anny" or "smpl") and its parameters."""
+
+    model: str = "anny"
+    params: tuple = ()  # sorted (key, value) pairs so the spec is hashable
+
+    @classmethod
+    def anny(cls, phenotype: dict[str, float], leg_spread_deg: float = 5.0) -> "BodySpec":
+        return cls("anny", tuple(sorted({**phenotype, "leg_spread_deg": leg_spread_deg}.items())))
+
+    def build(self) -> BodyModel:
+        return _build_body(self)
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "params": dict(self.params)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "BodySpec":
+        return cls(str(d.get("model", "anny")), tuple(sorted(dict(d.get("params", {})).items())))
+
+
+@lru_cache(maxsize=4)
+def _build_body(spec: BodySpec) -> BodyModel:
+    if spec.model == "anny":
+        from ..body.anny_backend import AnnyBody
+
+        params = dict(spec.params)
+        spread = float(params.pop("leg_spread_deg", 5.0))
+        return AnnyBody(params, leg_spread_deg=spread)
+    raise ValueError(f"unknown body model {spec.model!r}; available: 'anny'")
+
+
+@dataclass
+class Frame:
+    """One video frame: image (H,W,3) float32 in [0,1] over a black background, mask (H,W)
+    float32 coverage, its camera and body pose, and an optional camera-space normal map."""
+
+    index: int
+    image: np.ndarray
+    mask: np.ndarray
+    camera: Camera
+    pose: BodyPose
+    normal: np.ndarray | None = None
+    time: float = 0.0
+
+    def __post_init__(self) -> None:
+        H, W = self.camera.height, self.camera.width
+        if self.image.shape != (H, W, 3):
+            raise ValueError(f"frame {self.index}: image is {self.image.shape}, camera expects ({H}, {W}, 3)")
+        if self.mask.shape != (H, W):
+            raise ValueError(f"frame {self.index}: mask is {self.mask.shape}, camera expects ({H}, {W})")
+        if self.normal is not None and self.normal.shape != (H, W, 3):
+            raise ValueError(f"frame {self.index}: normal map is {self.normal.shape}, expected ({H}, {W}, 3)")
+
+
+@dataclass
+class EvalView:
+    """A held-out view with ground truth: the body in the pose of ``frame_index`` seen by
+    ``camera``. ``seen`` marks views close to the training camera."""
+
+    camera: Camera
+    frame_index: int
+    image: np.ndarray
+    mask: np.ndarray
+    normal: np.ndarray | None
+    seen: bool
+    azimuth_deg: float
+
+
+@dataclass
+class Scene:
+    name: str
+    body: BodySpec
+    frames: list[Frame]
+    eval_views: list[EvalView] = field(default_factory=list)
+    fps: float = 20.0
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.frames:
+            raise ValueError(f"scene {self.name!r} has no frames")
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        c = self.frames[0].camera
+        return c.width, c.height
+
+    @property
+    def has_normals(self) -> bool:
+        return all(f.normal is not None for f in self.frames)
+
+    def body_model(self) -> BodyModel:
+        return self.body.build()
+
+    def pose(self, frame_index: int) -> BodyPose:
+        return self.frames[frame_index].pose
+
+    def summary(self) -> str:
+        w, h = self.image_size
+        seen = sum(v.seen for v in self.eval_views)
+        return (f"scene {self.name}: {len(self.frames)} frames {w}x{h} at {self.fps:g} fps, body {self.body.model}, "
+                f"{len(self.eval_views)} evaluation views ({seen} seen, {len(self.eval_views) - seen} unseen), "
+                f"normal maps: {'yes' if self.has_normals else 'no'}")

@@ -1,0 +1,121 @@
+"""The synthetic benchmark scene: an Anny body in painted clothes walking in place in front of one
+camera, with evaluation cameras all around (ground truth for the views the video never saw)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from ...body.anny_backend import random_phenotype
+from ...body.base import vertex_normals
+from ...camera import Camera, angle_between_views
+from ..scene import BodySpec, EvalView, Frame, Scene
+from .clothing import paint_texture
+from .motion import walk_in_place
+
+
+@dataclass(frozen=True)
+class SyntheticConfig:
+    seed: int = 0
+    num_frames: int = 60  # 3 s at 20 fps
+    fps: float = 20.0
+    image_size: int = 512
+    num_eval_azimuths: int = 12  # every 30 degrees
+    eval_frames: int = 3  # poses per evaluation camera, evenly spread over the clip
+    seen_angle_deg: float = 45.0  # evaluation views within this angle of the training camera are "seen"
+    distance: float = 3.6
+    elevation_deg: float = 4.0
+    fov_y_deg: float = 32.0
+    texture_size: int = 512
+    supersample: int = 2
+    leg_spread_deg: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.num_frames < 1:
+            raise ValueError(f"synthetic scene: num_frames must be >= 1, found {self.num_frames}")
+        if self.image_size < 32:
+            raise ValueError(f"synthetic scene: image_size must be >= 32, found {self.image_size}")
+        if self.num_eval_azimuths < 1 or self.eval_frames < 1:
+            raise ValueError("synthetic scene: need at least one evaluation azimuth and frame")
+
+
+def quantize(image: np.ndarray) -> np.ndarray:
+    """Round to 8 bits so the in-memory scene equals the one written to PNG files."""
+    return (np.round(np.clip(image, 0.0, 1.0) * 255.0) / 255.0).astype(np.float32)
+
+
+def quantize_normals(normal: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Camera-space normals rounded as the 8-bit encoding of scene files would (0 outside the mask)."""
+    return (2.0 * quantize(0.5 * (normal + 1.0)) - 1.0) * (mask[..., None] > 0)
+
+
+def check_body_in_view(camera: Camera, points: np.ndarray, what: str, min_inside: float = 0.5) -> None:
+    uv, z = camera.project(points)
+    inside = (z > camera.near) & (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+    if inside.mean() < min_inside:
+        raise ValueError(f"{what}: camera {camera.name!r} sees only {100 * inside.mean():.0f}% of the body's joints "
+                         f"(expected at least {100 * min_inside:.0f}%); the camera does not see the body")
+
+
+def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progress: bool = True) -> Scene:
+    from renderer.gl_context import shared_offscreen_context
+    from renderer.mesh_renderer import MeshRenderer
+
+    rng = np.random.default_rng(config.seed)
+    spec = BodySpec.anny(random_phenotype(rng), config.leg_spread_deg)
+    body = spec.build()
+    texture = paint_texture(body, rng, config.texture_size)
+    poses = walk_in_place(body.bone_labels, config.num_frames, config.fps, rng)
+
+    z = body.canonical_vertices[:, 2].numpy()
+    target = np.array([0.0, 0.0, 0.5 * (z.min() + z.max())])
+    cam_kw = dict(width=config.image_size, height=config.image_size, fov_y_deg=config.fov_y_deg)
+    train_cam = Camera.orbit(0.0, config.elevation_deg, config.distance, target, name="train", **cam_kw)
+
+    ctx = shared_offscreen_context()
+    faces = body.faces.numpy()
+    corner_uvs = body.uv_coords.numpy()[body.face_uv_indices.numpy()]
+    mesh = MeshRenderer(ctx, faces, corner_uvs, texture, supersample=config.supersample)
+    faces_t = body.faces
+
+    def render(pose, camera, what):
+        verts = body.posed_vertices(pose)
+        check_body_in_view(camera, body.posed_joints(pose).numpy(), what)
+        normals = vertex_normals(verts, faces_t).numpy()
+        out = mesh.render(verts.numpy(), normals, camera)
+        mask = quantize(out.mask)
+        return quantize(out.rgb), mask, quantize_normals(out.normal, mask)
+
+    eval_azimuths = [360.0 * k / config.num_eval_azimuths for k in range(config.num_eval_azimuths)]
+    eval_frames = np.linspace(0, config.num_frames - 1, config.eval_frames + 2)[1:-1].round().astype(int)
+    total = config.num_frames + len(eval_azimuths) * len(eval_frames)
+    bar = tqdm(total=total, desc=f"synthetic scene seed={config.seed}", disable=not progress, unit="img")
+    try:
+        frames = []
+        for i, pose in enumerate(poses):
+            rgb, mask, normal = render(pose, train_cam, f"frame {i}")
+            frames.append(Frame(i, rgb, mask, train_cam, pose, normal, time=i / config.fps))
+            bar.update()
+        views = []
+        for az in eval_azimuths:
+            cam = Camera.orbit(az, config.elevation_deg, config.distance, target, name=f"eval_az{az:03.0f}", **cam_kw)
+            angle = angle_between_views(cam, train_cam, target)
+            for fi in eval_frames:
+                rgb, mask, normal = render(poses[fi], cam, f"evaluation view {cam.name} frame {fi}")
+                views.append(EvalView(cam, int(fi), rgb, mask, normal, seen=angle <= config.seen_angle_deg, azimuth_deg=az))
+                bar.update()
+    finally:
+        bar.close()
+        mesh.release()
+    meta = {"source": "synthetic", "seed": config.seed, "config": config.__dict__, "texture": texture,
+            "target": target.tolist()}
+    return Scene(f"synthetic-seed{config.seed}", spec, frames, views, config.fps, meta)
+
+
+def angle_to_seen(azimuth_deg: float) -> float:
+    """Smallest angle between an azimuth and the frontal training direction (degrees)."""
+    a = abs((azimuth_deg + 180.0) % 360.0 - 180.0)
+    return a if not math.isnan(a) else 180.0

@@ -1,0 +1,155 @@
+import json
+import math
+
+import numpy as np
+import pytest
+
+from reconstruct.body.parts import PART_INDEX
+from reconstruct.data.load import load_scene, parse_synthetic_spec
+from reconstruct.data.scene_io import SceneFormatError, read_scene, write_scene
+from reconstruct.data.synthetic.generator import SyntheticConfig, build_synthetic_scene, check_body_in_view
+from reconstruct.data.synthetic.motion import walk_in_place
+
+
+def test_scene_shape_and_seen_flags(small_scene):
+    s = small_scene
+    assert len(s.frames) == 4 and s.image_size == (96, 96)
+    assert len({v.azimuth_deg for v in s.eval_views}) == 8
+    for v in s.eval_views:
+        a = abs((v.azimuth_deg + 180) % 360 - 180)
+        assert v.seen == (a <= 45.0)
+    assert any(v.seen for v in s.eval_views) and any(not v.seen for v in s.eval_views)
+    for f in s.frames:
+        assert f.mask.max() == 1.0 and 0.05 < f.mask.mean() < 0.6
+        assert f.image.min() >= 0 and f.image.max() <= 1
+        # black outside the body, normals unit length inside
+        assert np.abs(f.image[f.mask == 0]).max() == 0
+        inside = f.mask > 0.99
+        assert np.abs(np.linalg.norm(f.normal[inside], axis=-1) - 1).max() < 0.02
+        # the body faces the training camera: camera-space normals point back at it (z < 0)
+        assert np.median(f.normal[inside][:, 2]) < -0.3
+
+
+def test_back_view_differs_from_front_view(small_scene):
+    front = next(v for v in small_scene.eval_views if v.azimuth_deg == 0)
+    back = next(v for v in small_scene.eval_views if v.azimuth_deg == 180)
+    m = (front.mask > 0.99) & (back.mask[:, ::-1] > 0.99)
+    # mirror the back view so the silhouettes roughly overlap; clothing differs front and back
+    diff = np.abs(front.image[m] - back.image[:, ::-1][m]).mean()
+    assert diff > 0.08, diff
+
+
+def test_texture_patterns_differ_front_and_back(anny_body):
+    from reconstruct.body.uv_map import build_uv_map
+    from reconstruct.data.synthetic.clothing import paint_texture
+
+    tex = paint_texture(anny_body, np.random.default_rng(0), 256)
+    uv = build_uv_map(anny_body, 256)
+    colors = tex[uv.texel_rc[:, 0], uv.texel_rc[:, 1]].astype(float)
+    torso = (uv.parts == PART_INDEX["torso"]) & (uv.positions[:, 2].numpy() > 0.15)
+    front = torso & (uv.normals[:, 1].numpy() < -0.5)
+    back = torso & (uv.normals[:, 1].numpy() > 0.5)
+    assert np.abs(colors[front].mean(0) - colors[back].mean(0)).sum() + abs(colors[front].std() - colors[back].std()) > 20
+
+
+def test_synthetic_is_deterministic_and_seeded():
+    cfg = SyntheticConfig(seed=7, num_frames=2, image_size=48, num_eval_azimuths=8, eval_frames=1, texture_size=128)
+    a = build_synthetic_scene(cfg, progress=False)
+    b = build_synthetic_scene(cfg, progress=False)
+    c = build_synthetic_scene(SyntheticConfig(**{**cfg.__dict__, "seed": 8}), progress=False)
+    assert np.array_equal(a.frames[1].image, b.frames[1].image)
+    assert not np.array_equal(a.frames[1].image, c.frames[1].image)
+    assert a.body != c.body
+
+
+def test_motion_within_human_limits():
+    import anny  # noqa: F401  (labels come from the model)
+    from reconstruct.body.anny_backend import load_anny_model
+
+    labels = list(load_anny_model().bone_labels)
+    poses = walk_in_place(labels, 120, 20.0, np.random.default_rng(1))
+    turn = np.degrees([p.global_orient[2] for p in poses])
+    assert np.abs(turn).max() <= 35.0 + 1e-9 and np.ptp(turn) > 20
+    knee = np.degrees([p.joint_rotations[labels.index("lowerleg01.L"), 0] for p in poses])
+    hip = np.degrees([p.joint_rotations[labels.index("upperleg01.L"), 0] for p in poses])
+    assert knee.min() >= 0 and knee.max() <= 140 and knee.max() > 20  # knees bend one way
+    assert hip.max() <= 0 + 1e-9 and hip.min() >= -120
+    for p in poses:
+        assert np.degrees(np.abs(p.joint_rotations)).max() <= 60
+
+
+def test_scene_folder_roundtrip(small_scene, tmp_path):
+    folder = write_scene(small_scene, tmp_path / "scene")
+    again = read_scene(folder)
+    assert again.summary() == small_scene.summary()
+    for a, b in zip(small_scene.frames, again.frames):
+        assert np.array_equal(a.image, b.image) and np.array_equal(a.mask, b.mask)
+        assert np.abs(a.normal - b.normal).max() < 1e-6
+        assert np.allclose(a.pose.joint_rotations, b.pose.joint_rotations)
+        assert np.allclose(a.camera.K, b.camera.K)
+    assert again.body == small_scene.body
+    assert [v.seen for v in again.eval_views] == [v.seen for v in small_scene.eval_views]
+    assert np.array_equal(again.meta["texture"], small_scene.meta["texture"])
+    # rewriting replaces the folder atomically and leaves no temporary folders behind
+    write_scene(again, folder)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+
+
+def test_bad_scene_folders_are_named(small_scene, tmp_path):
+    with pytest.raises(SceneFormatError, match="no such scene folder"):
+        read_scene(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SceneFormatError, match="not a WonderHuman scene folder"):
+        read_scene(tmp_path / "empty")
+    folder = write_scene(small_scene, tmp_path / "s")
+    doc = json.loads((folder / "scene.json").read_text())
+
+    (folder / "scene.json").write_text("{not json")
+    with pytest.raises(SceneFormatError, match=r"scene.json: not valid JSON"):
+        read_scene(folder)
+    (folder / "scene.json").write_text(json.dumps({**doc, "frames": doc["frames"][:2]}))
+    with pytest.raises(SceneFormatError, match=r"4 poses for 2 frames"):
+        read_scene(folder)
+    (folder / "scene.json").write_text(json.dumps({**doc, "frames": []}))
+    with pytest.raises(SceneFormatError, match="no frames"):
+        read_scene(folder)
+    (folder / "scene.json").write_text(json.dumps(doc))
+    (folder / "frames" / "rgb" / "000002.png").unlink()
+    with pytest.raises(SceneFormatError, match=r"000002.png: missing \(frame 2 image\)"):
+        read_scene(folder)
+    import imageio.v3 as iio
+
+    iio.imwrite(folder / "frames" / "rgb" / "000002.png", np.zeros((10, 12, 3), np.uint8))
+    with pytest.raises(SceneFormatError, match=r"image is 12x10, the camera expects 96x96"):
+        read_scene(folder)
+
+
+def test_camera_that_misses_the_body_is_an_error(anny_body):
+    from reconstruct.camera import Camera
+
+    joints = anny_body.canonical_joints.numpy()
+    away = Camera.look_at([0, -3, 0], [0, -6, 0], width=64, height=64)
+    with pytest.raises(ValueError, match="does not see the body"):
+        check_body_in_view(away, joints, "frame 0")
+
+
+def test_spec_parsing_and_errors():
+    cfg = parse_synthetic_spec("synthetic:seed=4,frames=10,size=128")
+    assert (cfg.seed, cfg.num_frames, cfg.image_size) == (4, 10, 128)
+    with pytest.raises(ValueError, match="unknown key 'colour'"):
+        parse_synthetic_spec("synthetic:seed=1,colour=3")
+    with pytest.raises(ValueError, match="is not a int"):
+        parse_synthetic_spec("synthetic:seed=x")
+    with pytest.raises(ValueError, match="num_frames must be >= 1"):
+        parse_synthetic_spec("synthetic:frames=0")
+    with pytest.raises(SceneFormatError, match="no such scene folder"):
+        load_scene("/nonexistent/scene")
+
+
+def test_synthetic_cache_roundtrip(monkeypatch, tmp_path):
+    monkeypatch.setenv("WONDERHUMAN_CACHE_DIR", str(tmp_path))
+    spec = "synthetic:seed=2,frames=2,size=48,azimuths=8,eval_frames=1,texture_size=128"
+    a = load_scene(spec, progress=False)
+    assert len(list((tmp_path / "scenes").iterdir())) == 1
+    b = load_scene(spec, progress=False)  # read back from the cache
+    assert np.array_equal(a.frames[0].image, b.frames[0].image)
