@@ -9,7 +9,7 @@ cd "$(dirname "$0")/.."
 task="${1:-test}"
 shift || true
 
-apt_packages=(libegl1 libgl1 libgl1-mesa-dri xvfb xauth xdotool python3-venv ffmpeg)
+apt_packages=(libegl1 libgl1 libgl1-mesa-dri xvfb xauth xdotool python3-venv)
 missing=()
 for pkg in "${apt_packages[@]}"; do
   dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
