@@ -41,7 +41,63 @@ def _cmd_contact_sheet(args) -> int:
 def _cmd_demo(args) -> int:
     from app.demo import run_demo
 
-    return run_demo(args.scene, Path(args.out), threads=args.threads)
+    return run_demo(args.scene, Path(args.out), minutes=args.minutes, threads=args.threads)
+
+
+def _stage1_config(args):
+    import dataclasses
+
+    from reconstruct.avatar.config import AvatarConfig
+    from reconstruct.train.config import Stage1Config
+
+    avatar = AvatarConfig()
+    if args.gaussian_res:
+        avatar.gaussian_resolution = args.gaussian_res
+    if args.hidden:
+        avatar.hidden = args.hidden
+    kw = {"avatar": avatar, "device": args.device, "seed": args.seed}
+    for key in ("iters", "minutes", "threads"):
+        if getattr(args, key) is not None:
+            kw[key] = getattr(args, key)
+    if args.eval_every is not None:
+        kw["eval_every_seconds"] = args.eval_every
+    if args.pose_refinement:
+        kw["pose_refinement"] = True
+    if args.lpips_backbone or args.lpips_lin:
+        kw.update(lpips_backbone=args.lpips_backbone, lpips_lin=args.lpips_lin, lpips_net=args.lpips_net)
+    fields = {f.name: f for f in dataclasses.fields(Stage1Config)}
+    for item in args.set or []:
+        if "=" not in item:
+            raise ValueError(f"--set expects key=value, found {item!r}")
+        key, value = item.split("=", 1)
+        if key not in fields or key == "avatar":
+            raise ValueError(f"--set: unknown Stage I setting {key!r}; known: {sorted(k for k in fields if k != 'avatar')}")
+        default = getattr(Stage1Config(), key)
+        kw[key] = tuple(float(v) for v in value.split(",")) if isinstance(default, tuple) else (
+            value.lower() in ("1", "true", "yes") if isinstance(default, bool) else type(default)(value)
+            if default is not None else float(value))
+    if "iters" in kw and kw["iters"] < 1:
+        raise ValueError(f"--iters must be at least 1, found {kw['iters']}")
+    return Stage1Config(**kw)
+
+
+def _cmd_train(args) -> int:
+    from app.train_cmd import train
+
+    if args.stage != "1":
+        raise ValueError(f"--stage {args.stage}: only Stage I is available in this version")
+    if args.device == "cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            raise RuntimeError("--device cuda: CUDA is not available on this machine")
+    return train(args.scene, args.out, _stage1_config(args), progress=not args.quiet)
+
+
+def _cmd_eval(args) -> int:
+    from app.train_cmd import evaluate
+
+    return evaluate(args.run, as_json=args.json)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -67,9 +123,35 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--frame", type=int, default=None)
     s.set_defaults(func=_cmd_contact_sheet)
 
+    s = sub.add_parser("train", help="train an avatar on a scene (resumes when RUN has a checkpoint)")
+    s.add_argument("--scene", default=DEFAULT_SCENE, help="scene folder or synthetic:seed=S")
+    s.add_argument("--out", required=True, type=Path, help="run folder")
+    s.add_argument("--stage", default="1", choices=["1", "2", "all"])
+    s.add_argument("--iters", type=int, default=None)
+    s.add_argument("--minutes", type=float, default=None, help="wall-clock budget (whichever of iters/minutes ends first)")
+    s.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    s.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--gaussian-res", type=int, default=None, help="positional UV map resolution (one Gaussian per texel)")
+    s.add_argument("--hidden", type=int, default=None, help="decoder width")
+    s.add_argument("--eval-every", type=float, default=None, help="seconds of training between evaluations")
+    s.add_argument("--pose-refinement", action="store_true", help="optimise per-frame poses (in-the-wild videos)")
+    s.add_argument("--lpips-backbone", default=None, help="AlexNet/VGG backbone weights (torchvision state dict)")
+    s.add_argument("--lpips-lin", default=None, help="LPIPS linear-layer weights (alex.pth / vgg.pth)")
+    s.add_argument("--lpips-net", default="alex", choices=["alex", "vgg"])
+    s.add_argument("--set", action="append", metavar="KEY=VALUE", help="override any Stage I setting")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(func=_cmd_train)
+
+    s = sub.add_parser("eval", help="evaluate a run on its scene's held-out views; writes RUN/error_vs_time.png")
+    s.add_argument("run", type=Path)
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=_cmd_eval)
+
     s = sub.add_parser("demo", help="the headless pipeline on the built-in demo scene")
     s.add_argument("--scene", default=DEFAULT_SCENE)
     s.add_argument("--out", default="runs/demo", type=Path)
+    s.add_argument("--minutes", type=float, default=3.0, help="Stage I training time")
     s.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
     s.set_defaults(func=_cmd_demo)
     return p
@@ -83,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, RuntimeError) as exc:
+    except (ValueError, FileNotFoundError, RuntimeError, ArithmeticError) as exc:
         print(f"wonderhuman-studio {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

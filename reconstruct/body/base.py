@@ -63,12 +63,17 @@ class BodyModel(ABC):
     def bone_transforms(self, pose: BodyPose) -> torch.Tensor:
         """(J,4,4) transforms from the rest mesh to ``pose`` including its global rotation and
         translation."""
+        f64 = dict(dtype=torch.float64)
+        return self.bone_transforms_t(torch.as_tensor(pose.joint_rotations, **f64),
+                                      torch.as_tensor(pose.global_orient, **f64), torch.as_tensor(pose.transl, **f64))
+
+    def bone_transforms_t(self, joint_rotations: torch.Tensor, global_orient: torch.Tensor,
+                          transl: torch.Tensor) -> torch.Tensor:
+        """Differentiable ``bone_transforms`` on float64 tensors (used by pose refinement)."""
         from .pose import axis_angle_to_matrix, rigid
 
-        local = self.rest_to_pose_transforms(torch.as_tensor(pose.joint_rotations, dtype=torch.float64))
-        G = rigid(axis_angle_to_matrix(torch.as_tensor(pose.global_orient, dtype=torch.float64)),
-                  torch.as_tensor(pose.transl, dtype=torch.float64))
-        return G @ local
+        G = rigid(axis_angle_to_matrix(global_orient), transl)
+        return G @ self.rest_to_pose_transforms(joint_rotations)
 
     def canonical_pose(self) -> BodyPose:
         return BodyPose(self.canonical_joint_rotations(), np.zeros(3), np.zeros(3))

@@ -1,0 +1,313 @@
+"""TrainingSession: owns the scene, the avatar, the optimiser and the run folder; runs ``step()``;
+publishes Snapshots for the renderer; writes checkpoints atomically and resumes from them."""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..avatar.model import AvatarModel
+from ..body.pose import BodyPose
+from ..data.scene import Scene
+from ..metrics import load_lpips_or_none
+from ..snapshot import Snapshot, SnapshotBox
+from . import losses as L
+from .checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from .config import Stage1Config
+from .evaluate import evaluate_views
+from .metrics_log import MetricsLog
+from .render import crop_camera, mask_box, render_avatar
+from .schedule import step_decay
+
+CHECKPOINT_NAME = "checkpoint.pt"
+
+
+class TrainingSession:
+    def __init__(self, scene: Scene, config: Stage1Config | None = None, run_dir: str | Path | None = None,
+                 *, scene_spec: str | None = None) -> None:
+        self.scene = scene
+        self.config = config = config or Stage1Config()
+        self.scene_spec = scene_spec or scene.name
+        self.device = torch.device(config.device)
+        if config.threads:
+            torch.set_num_threads(config.threads)
+        torch.manual_seed(config.seed)
+        self.rng = np.random.default_rng(config.seed)
+        self.body = scene.body_model()
+        self.model = AvatarModel(self.body, config.avatar).to(self.device)
+        self.background = torch.tensor(config.background, dtype=torch.float32, device=self.device)
+        self.optimizer = torch.optim.Adam([
+            {"params": self.model.decoder.parameters(), "lr": config.lr_decoder, "name": "decoder"},
+            {"params": [self.model.features], "lr": config.lr_features, "name": "features"},
+        ])
+        self.base_lrs = [g["lr"] for g in self.optimizer.param_groups]
+        J = self.body.num_joints
+        T = len(scene.frames)
+        self.pose_delta = torch.nn.Parameter(torch.zeros(T, J + 2, 3, dtype=torch.float64))  # joints, orient, transl
+        self.pose_optimizer = torch.optim.Adam([self.pose_delta], lr=config.lr_pose) if config.pose_refinement else None
+        self.step_count = 0
+        self.elapsed = 0.0  # seconds spent in steps and evaluations, accumulated over resumes
+        self.epoch_order: list[int] = []
+        self.seen = torch.zeros(self.model.num_gaussians, dtype=torch.bool)
+        self.lpips, reason = load_lpips_or_none({"net": config.lpips_net, "backbone_path": config.lpips_backbone,
+                                                 "lin_path": config.lpips_lin} if config.lpips_backbone else None)
+        self.lpips_note = None if self.lpips is not None else f"LPIPS left out: {reason or 'no weights given'}"
+        if self.lpips is not None:
+            self.lpips = self.lpips.to(self.device).eval()
+            for p in self.lpips.parameters():
+                p.requires_grad_(False)
+        self.use_normals = scene.has_normals
+        self._targets = [self._prepare_frame(i) for i in range(T)]
+        self._transforms: dict[int, torch.Tensor] = {}
+        self.snapshots = SnapshotBox()
+        self.latest: dict = {}
+        self.run_dir = Path(run_dir) if run_dir is not None else None
+        self.log = MetricsLog(self.run_dir / "metrics.jsonl") if self.run_dir else None
+        self._last_eval = -math.inf
+        self._last_ckpt = 0.0
+
+    # ----- data ---------------------------------------------------------------------------
+    def _prepare_frame(self, i: int) -> dict:
+        f = self.scene.frames[i]
+        if f.mask.max() <= 0:
+            raise ValueError(f"scene {self.scene.name}: frame {i} has an empty mask (no person to learn from)")
+        box = mask_box(f.mask, self.config.crop_margin)
+        x0, y0, x1, y1 = box
+        as_t = lambda a: torch.as_tensor(np.ascontiguousarray(a[y0:y1, x0:x1]), dtype=torch.float32, device=self.device)
+        mask = as_t(f.mask)
+        image = as_t(f.image) + (1 - mask[..., None]) * self.background
+        normal = as_t(f.normal) if f.normal is not None else None
+        return {"camera": crop_camera(f.camera, box), "image": image, "mask": mask, "normal": normal, "box": box}
+
+    def frame_transforms(self, i: int, refined: bool = True) -> torch.Tensor:
+        if refined and self.config.pose_refinement:
+            return self._refined_transforms(i)
+        if i not in self._transforms:
+            self._transforms[i] = self.body.bone_transforms(self.scene.frames[i].pose).float().to(self.device)
+        return self._transforms[i]
+
+    def _refined_transforms(self, i: int) -> torch.Tensor:
+        p = self.scene.frames[i].pose
+        d = self.pose_delta[i]
+        f64 = dict(dtype=torch.float64)
+        T = self.body.bone_transforms_t(torch.as_tensor(p.joint_rotations, **f64) + d[:-2],
+                                        torch.as_tensor(p.global_orient, **f64) + d[-2],
+                                        torch.as_tensor(p.transl, **f64) + d[-1])
+        return T.float().to(self.device)
+
+    def refined_pose(self, i: int) -> BodyPose:
+        p = self.scene.frames[i].pose
+        d = self.pose_delta[i].detach().numpy()
+        return BodyPose(p.joint_rotations + d[:-2], p.global_orient + d[-2], p.transl + d[-1])
+
+    def _next_frame(self) -> int:
+        if not self.epoch_order:
+            self.epoch_order = list(self.rng.permutation(len(self.scene.frames)))
+        return int(self.epoch_order.pop())
+
+    # ----- schedule -----------------------------------------------------------------------
+    @property
+    def progress(self) -> float:
+        p = self.step_count / self.config.iters
+        if self.config.minutes:
+            p = max(p, self.elapsed / (60.0 * self.config.minutes))
+        return min(p, 1.0)
+
+    @property
+    def done(self) -> bool:
+        return self.progress >= 1.0
+
+    def _apply_schedule(self) -> None:
+        mult = step_decay(self.progress, tuple(self.config.lr_milestones), self.config.lr_gamma)
+        for g, base in zip(self.optimizer.param_groups, self.base_lrs):
+            g["lr"] = base * mult
+
+    # ----- one step -----------------------------------------------------------------------
+    def step(self) -> dict:
+        t0 = time.perf_counter()
+        cfg = self.config
+        self._apply_schedule()
+        i = self._next_frame()
+        tgt = self._targets[i]
+        refine = self.pose_optimizer is not None and self.progress >= cfg.pose_refinement_start
+        canon = self.model.canonical()
+        transforms = self.frame_transforms(i, refined=refine) if refine else self.frame_transforms(i, refined=False)
+        posed = self.model.pose(canon, transforms)
+        r = render_avatar(posed, tgt["camera"], self.background, normals=self.use_normals, first_hit=True,
+                          hit_threshold=cfg.hit_threshold)
+        terms = {
+            "rgb": L.mse(r.rgb, tgt["image"]),
+            "ssim": L.ssim_loss(r.rgb, tgt["image"]),
+            "offset": L.mean_square(canon.offsets_raw),
+            "scale": L.mean_square(canon.scales),
+            "features": L.mean_square(canon.features),
+        }
+        weights = {"rgb": cfg.lambda_rgb, "ssim": cfg.lambda_ssim, "offset": cfg.lambda_offset,
+                   "scale": cfg.lambda_scale, "features": cfg.lambda_features}
+        if self.use_normals and tgt["normal"] is not None:
+            terms["normal"] = L.mse(r.normal, tgt["normal"])
+            weights["normal"] = cfg.lambda_normal
+        if self.lpips is not None:
+            terms["lpips"] = self.lpips(r.rgb[None].clamp(0, 1), tgt["image"][None]).mean()
+            weights["lpips"] = cfg.lambda_lpips
+        loss = sum(weights[k] * v for k, v in terms.items())
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"step {self.step_count}: non-finite loss {float(loss)} "
+                                     f"({ {k: float(v) for k, v in terms.items()} })")
+        self.optimizer.zero_grad(set_to_none=True)
+        if self.pose_optimizer is not None:
+            self.pose_optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        if refine:
+            self.pose_optimizer.step()
+        self._mark_seen(r.first_hit, posed, tgt["camera"])
+        self.step_count += 1
+        self.elapsed += time.perf_counter() - t0
+        out = {"loss": float(loss.detach()), **{k: float(v.detach()) for k, v in terms.items()}, "frame": i,
+               "psnr_train": float(-10 * torch.log10(terms["rgb"].detach().clamp_min(1e-12)))}
+        self.latest.update(out)
+        return out
+
+    @torch.no_grad()
+    def _mark_seen(self, first_hit: torch.Tensor, posed, camera) -> None:
+        """Paper Eq. 7: a Gaussian is seen when it is the first hit of a training ray -- counted only
+        where it faces the camera. Without the facing test, Gaussians on the back of thin limbs whose
+        footprint spills past the outline are first hits on outline pixels and would be marked seen."""
+        hits = torch.unique(first_hit[first_hit >= 0])
+        if len(hits) == 0:
+            return
+        centre = torch.as_tensor(camera.center, dtype=posed.means.dtype, device=posed.means.device)
+        facing = ((posed.means[hits] - centre) * posed.normals[hits]).sum(1) < 0
+        self.seen[hits[facing].cpu()] = True
+
+    # ----- evaluation and snapshots ---------------------------------------------------------
+    def evaluate(self, views=None) -> tuple[list[dict], dict]:
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            canon = self.model.canonical()
+            rows, summary = evaluate_views(self.model, canon, self.scene, lambda i: self.frame_transforms(i), self.background,
+                                           lpips=self.lpips, views=views)
+        self.elapsed += time.perf_counter() - t0
+        self.latest.update({k: v for k, v in summary.items() if v is not None})
+        return rows, summary
+
+    def maybe_evaluate(self, force: bool = False) -> dict | None:
+        if not self.scene.eval_views:
+            return None
+        if not force and self.elapsed - self._last_eval < self.config.eval_every_seconds:
+            return None
+        rows, summary = self.evaluate()
+        self._last_eval = self.elapsed
+        record = {"kind": "eval", "step": self.step_count, "elapsed": round(self.elapsed, 3), "stage": 1, **summary,
+                  "views": rows}
+        if self.log:
+            self.log.append(record)
+        return record
+
+    def log_step(self, out: dict) -> None:
+        if self.log:
+            self.log.append({"kind": "train", "step": self.step_count, "elapsed": round(self.elapsed, 3), "stage": 1,
+                             **{k: (round(v, 6) if isinstance(v, float) else v) for k, v in out.items()}})
+
+    @torch.no_grad()
+    def make_snapshot(self, space: str = "observation", frame_index: int = 0) -> Snapshot:
+        canon = self.model.canonical()
+        if space == "canonical":
+            means, normals = canon.means, canon.normals
+        elif space == "observation":
+            posed = self.model.pose(canon, self.frame_transforms(frame_index))
+            means, normals = posed.means, posed.normals
+        else:
+            raise ValueError(f"snapshot space must be 'observation' or 'canonical', found {space!r}")
+        n = means.shape[0]
+        f32 = lambda t: t.detach().cpu().float().numpy()
+        rot = np.zeros((n, 4), np.float32)
+        rot[:, 0] = 1
+        return Snapshot(f32(means), f32(canon.scales), rot, f32(canon.colors), np.ones(n, np.float32), f32(normals),
+                        self.seen.numpy().astype(np.uint8), space=space, frame_index=frame_index, stage=1,
+                        step=self.step_count, metrics={k: v for k, v in self.latest.items() if isinstance(v, (int, float))})
+
+    def publish(self, space: str = "observation", frame_index: int = 0) -> None:
+        self.snapshots.publish(self.make_snapshot(space, frame_index))
+
+    # ----- checkpoints --------------------------------------------------------------------
+    def state(self) -> dict:
+        return {
+            "stage": 1,
+            "step": self.step_count,
+            "elapsed": self.elapsed,
+            "config": self.config.to_dict(),
+            "scene_spec": self.scene_spec,
+            "scene_name": self.scene.name,
+            "model": self.model.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "pose_delta": self.pose_delta.detach().clone(),
+            "pose_optimizer": self.pose_optimizer.state_dict() if self.pose_optimizer else None,
+            "seen": self.seen.clone(),
+            "epoch_order": list(self.epoch_order),
+            "rng": {"numpy": self.rng.bit_generator.state, "torch": torch.get_rng_state(), "python": random.getstate()},
+            "latest": self.latest,
+        }
+
+    def save(self, path: str | Path | None = None) -> Path:
+        if path is None:
+            if self.run_dir is None:
+                raise ValueError("save: no run folder and no path given")
+            path = self.run_dir / CHECKPOINT_NAME
+        out = save_checkpoint(self.state(), path)
+        self._last_ckpt = self.elapsed
+        return out
+
+    def maybe_save(self) -> Path | None:
+        if self.run_dir is not None and self.elapsed - self._last_ckpt >= self.config.checkpoint_every_seconds:
+            return self.save()
+        return None
+
+    def load_state(self, state: dict, source: str = "checkpoint") -> None:
+        if state.get("scene_name") != self.scene.name:
+            raise CheckpointError(f"{source}: made for scene {state.get('scene_name')!r}, not {self.scene.name!r}")
+        try:
+            self.model.load_state_dict(state["model"])
+            self.optimizer.load_state_dict(state["optimizer"])
+        except (RuntimeError, KeyError, ValueError) as exc:
+            raise CheckpointError(f"{source}: does not fit this model ({exc})") from exc
+        self.base_lrs = [self.config.lr_decoder, self.config.lr_features]
+        with torch.no_grad():
+            self.pose_delta.copy_(state["pose_delta"])
+        if self.pose_optimizer is not None and state.get("pose_optimizer"):
+            self.pose_optimizer.load_state_dict(state["pose_optimizer"])
+        self.step_count = int(state["step"])
+        self.elapsed = float(state["elapsed"])
+        self._last_ckpt = self.elapsed
+        self._last_eval = self.elapsed
+        self.seen = state["seen"].clone()
+        self.epoch_order = [int(i) for i in state["epoch_order"]]
+        self.rng.bit_generator.state = state["rng"]["numpy"]
+        torch.set_rng_state(state["rng"]["torch"])
+        random.setstate(state["rng"]["python"])
+        self.latest = dict(state.get("latest", {}))
+
+    @classmethod
+    def resume(cls, scene: Scene, run_dir: str | Path, config: Stage1Config | None = None) -> "TrainingSession":
+        run_dir = Path(run_dir)
+        state = load_checkpoint(run_dir / CHECKPOINT_NAME)
+        cfg = config or Stage1Config.from_dict(state["config"])
+        session = cls(scene, cfg, run_dir, scene_spec=state.get("scene_spec"))
+        session.load_state(state, str(run_dir / CHECKPOINT_NAME))
+        return session
+
+
+def write_run_info(run_dir: Path, scene_spec: str, config: Stage1Config) -> None:
+    info = {"scene": scene_spec, "stage": 1, "config": config.to_dict(), "python": sys.version.split()[0],
+            "torch": torch.__version__}
+    tmp = run_dir / ".run.json.tmp"
+    tmp.write_text(json.dumps(info, indent=1))
+    tmp.replace(run_dir / "run.json")

@@ -1,0 +1,151 @@
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from reconstruct.train.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from reconstruct.train.metrics_log import MetricsLog
+from reconstruct.train.session import CHECKPOINT_NAME, TrainingSession
+
+
+def test_training_reduces_the_loss_and_marks_visibility(tiny_scene, tiny_config):
+    s = TrainingSession(tiny_scene, tiny_config)
+    first = [s.step()["rgb"] for _ in range(4)]
+    for _ in range(40):
+        out = s.step()
+    last = [s.step()["rgb"] for _ in range(4)]
+    assert np.mean(last) < 0.7 * np.mean(first)
+    snap = s.make_snapshot("canonical")
+    n = s.model.num_gaussians
+    assert snap.means.shape == (n, 3) and snap.visibility.shape == (n,) and snap.colors.shape == (n, 3)
+    assert snap.step == s.step_count == 48
+    # Eq. 7: front-facing Gaussians are first hits of the front camera, back-facing ones are not
+    normals = s.model.base_normals.numpy()
+    front = normals[:, 1] < -0.7
+    back = normals[:, 1] > 0.7
+    seen = snap.visibility.astype(bool)
+    assert seen[front].mean() > 0.5
+    assert seen[back].mean() < 0.1
+
+
+def test_observation_snapshot_is_posed(tiny_scene, tiny_config):
+    s = TrainingSession(tiny_scene, tiny_config)
+    a = s.make_snapshot("observation", 0)
+    c = s.make_snapshot("canonical")
+    assert np.abs(a.means - c.means).max() > 0.01
+    with pytest.raises(ValueError, match="space"):
+        s.make_snapshot("world")
+
+
+def test_checkpoint_resume_continues_identically(tiny_scene, tiny_config, tmp_path):
+    torch.set_num_threads(1)
+    straight = TrainingSession(tiny_scene, tiny_config, tmp_path / "a")
+    (tmp_path / "a").mkdir()
+    for _ in range(6):
+        straight.step()
+    straight.save()
+    saved = {k: v.clone() for k, v in straight.model.state_dict().items()}
+    after = [straight.step()["loss"] for _ in range(4)]
+
+    resumed = TrainingSession.resume(tiny_scene, tmp_path / "a")
+    assert resumed.step_count == 6
+    for k, v in resumed.model.state_dict().items():
+        assert torch.equal(v, saved[k]), k
+    again = [resumed.step()["loss"] for _ in range(4)]
+    assert np.allclose(after, again, rtol=1e-5, atol=1e-7)
+
+
+def test_checkpoint_write_is_atomic(tmp_path, monkeypatch):
+    path = tmp_path / "ck.pt"
+    save_checkpoint({"x": 1}, path)
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", boom)
+    with pytest.raises(OSError, match="disk full"):
+        save_checkpoint({"x": 2}, path)
+    monkeypatch.undo()
+    assert load_checkpoint(path)["x"] == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["ck.pt"]
+
+
+def test_corrupt_and_foreign_checkpoints_are_named(tmp_path):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"\x00garbage")
+    with pytest.raises(CheckpointError, match="bad.pt: not a readable checkpoint"):
+        load_checkpoint(bad)
+    torch.save({"weights": 1}, tmp_path / "other.pt")
+    with pytest.raises(CheckpointError, match="not a WonderHuman checkpoint"):
+        load_checkpoint(tmp_path / "other.pt")
+    with pytest.raises(CheckpointError, match="no checkpoint file"):
+        load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_empty_mask_frame_is_an_error(tiny_scene, tiny_config):
+    import copy
+
+    scene = copy.deepcopy(tiny_scene)
+    scene.frames[2].mask[:] = 0
+    with pytest.raises(ValueError, match="frame 2 has an empty mask"):
+        TrainingSession(scene, tiny_config)
+
+
+def test_metrics_log_skips_a_torn_line(tmp_path):
+    log = MetricsLog(tmp_path / "m.jsonl")
+    log.append({"kind": "eval", "step": 1})
+    log.append({"kind": "train", "step": 2})
+    with open(tmp_path / "m.jsonl", "a") as f:
+        f.write('{"kind": "ev')
+    assert [r["step"] for r in log.read()] == [1, 2]
+    log.truncate_after(1)
+    assert [r["step"] for r in log.read()] == [1]
+
+
+def test_evaluation_reports_seen_and_unseen(tiny_scene, tiny_config):
+    s = TrainingSession(tiny_scene, tiny_config)
+    rows, summary = s.evaluate()
+    assert len(rows) == len(tiny_scene.eval_views)
+    assert summary["seen_psnr"] is not None and summary["unseen_psnr"] is not None
+    assert summary["seen_lpips"] is None  # no weights given
+
+
+def test_cli_train_eval_and_bad_input(tmp_path, capsys):
+    from app.cli import main
+
+    scene = "synthetic:seed=1,frames=3,size=48,azimuths=8,eval_frames=1,texture_size=128"
+    run = tmp_path / "run"
+    assert main(["train", "--scene", scene, "--out", str(run), "--iters", "0"]) == 2
+    assert "--iters must be at least 1" in capsys.readouterr().err
+    assert main(["train", "--scene", "/no/such/scene", "--out", str(run), "--iters", "2"]) == 2
+    assert "no such scene folder" in capsys.readouterr().err
+    args = ["train", "--scene", scene, "--out", str(run), "--iters", "3", "--gaussian-res", "32", "--hidden", "16",
+            "--quiet", "--set", "crop_margin=4"]
+    assert main(args) == 0
+    assert (run / CHECKPOINT_NAME).is_file() and (run / "error_vs_time.png").is_file()
+    capsys.readouterr()
+    assert main(["eval", str(run), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["step"] == 3 and len(result["views"]) == 8
+    # a corrupt checkpoint is reported and left in place
+    (run / CHECKPOINT_NAME).write_bytes(b"junk")
+    assert main(args) == 2
+    assert "not a readable checkpoint" in capsys.readouterr().err
+    assert (run / CHECKPOINT_NAME).read_bytes() == b"junk"
+    assert main(["eval", str(tmp_path)]) == 2
+    assert "not a training run" in capsys.readouterr().err
+
+
+def test_second_trainer_on_a_run_folder_is_refused(tmp_path):
+    from app.train_cmd import RunLock, RunLockedError
+
+    (tmp_path / ".lock").write_text(str(os.getpid()))
+    with pytest.raises(RunLockedError, match="another training process"):
+        with RunLock(tmp_path):
+            pass
+    (tmp_path / ".lock").write_text("999999999")  # stale
+    with RunLock(tmp_path):
+        assert (tmp_path / ".lock").read_text() == str(os.getpid())
+    assert not (tmp_path / ".lock").exists()
