@@ -70,6 +70,8 @@ def body_scene(n: int, channels: int, seed: int = 0) -> dict:
     import numpy as np
     import torch
 
+    from reconstruct.gaussians import quats_aligning_z
+
     rng = np.random.default_rng(seed)
     areas = np.array([2 * math.pi * r * math.dist(a, b) + 4 * math.pi * r * r for a, b, r in CAPSULES])
     counts = np.floor(n * areas / areas.sum()).astype(int)
@@ -78,12 +80,7 @@ def body_scene(n: int, channels: int, seed: int = 0) -> dict:
     points = np.concatenate([p for p, _ in samples])
     normals = np.concatenate([q for _, q in samples])
     spacing = math.sqrt(areas.sum() / n)
-    z = np.array([0.0, 0.0, 1.0])  # rotate local +z onto the normal
-    axis = np.cross(z, normals)
-    sin = np.linalg.norm(axis, axis=1)
-    angle = np.arctan2(sin, normals @ z)
-    axis /= np.maximum(sin, 1e-12)[:, None]
-    quats = np.concatenate([np.cos(angle / 2)[:, None], np.sin(angle / 2)[:, None] * axis], axis=1)
+    quats = quats_aligning_z(normals)
     scales = np.array([1.0, 1.0, 0.3]) * spacing * rng.uniform(0.7, 1.3, size=(n, 1))
     as_tensor = lambda a: torch.tensor(a, dtype=torch.float32)  # noqa: E731
     return {"means": as_tensor(points), "quats": as_tensor(quats), "scales": as_tensor(scales),

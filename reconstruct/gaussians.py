@@ -49,3 +49,17 @@ class GaussianSet:
 
     def with_features(self, features: torch.Tensor) -> "GaussianSet":
         return GaussianSet(self.means, self.scales, self.quats, self.opacities, features)
+
+
+def quats_aligning_z(normals):
+    """(N,4) wxyz quaternions (numpy) rotating the local +Z axis onto each unit normal (N,3): the
+    orientation of flat Gaussians lying in a surface."""
+    import numpy as np
+
+    normals = np.asarray(normals, np.float64)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, normals)
+    sin = np.linalg.norm(axis, axis=1)
+    angle = np.arctan2(sin, normals @ z)
+    axis = axis / np.maximum(sin, 1e-12)[:, None]
+    return np.concatenate([np.cos(angle / 2)[:, None], np.sin(angle / 2)[:, None] * axis], axis=1)

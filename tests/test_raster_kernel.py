@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from reconstruct.camera import Camera
+from reconstruct.gaussians import quats_aligning_z
 from reconstruct.raster import cpu_backend, rasterization
 from reconstruct.raster.projection import project_gaussians
 from reconstruct.raster.reference import rasterize_reference
@@ -78,12 +79,7 @@ def body_scene(n: int, seed: int = 0) -> dict:
     points, normals = np.concatenate(points), np.concatenate(normals)
     m = len(points)
     spacing = math.sqrt(2.0 / m)
-    z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(z, normals)
-    s = np.linalg.norm(axis, axis=1)
-    angle = np.arctan2(s, normals @ z)
-    axis /= np.maximum(s, 1e-12)[:, None]
-    quats = np.concatenate([np.cos(angle / 2)[:, None], np.sin(angle / 2)[:, None] * axis], axis=1)
+    quats = quats_aligning_z(normals)
     scales = np.array([1.0, 1.0, 0.3]) * spacing * rng.uniform(0.7, 1.3, size=(m, 1))
     t = lambda a: torch.tensor(a, dtype=F64)  # noqa: E731
     return {"means": t(points), "quats": t(quats), "scales": t(scales),

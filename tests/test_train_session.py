@@ -149,3 +149,38 @@ def test_second_trainer_on_a_run_folder_is_refused(tmp_path):
     with RunLock(tmp_path):
         assert (tmp_path / ".lock").read_text() == str(os.getpid())
     assert not (tmp_path / ".lock").exists()
+
+
+def test_pose_refinement_moves_the_poses(tiny_scene, tiny_config):
+    tiny_config.pose_refinement = True
+    tiny_config.pose_refinement_start = 0.0
+    s = TrainingSession(tiny_scene, tiny_config)
+    for _ in range(4):
+        s.step()
+    assert s.pose_delta.detach().abs().max() > 0
+    refined = s.refined_pose(0)
+    assert refined.joint_rotations.shape == tiny_scene.frames[0].pose.joint_rotations.shape
+    # the refined transforms are the body model's for the refined pose
+    T = s.body.bone_transforms(refined).float()
+    assert torch.allclose(s.frame_transforms(0), T, atol=1e-5)
+
+
+def test_snapshots_cross_threads(tiny_scene, tiny_config):
+    import threading
+
+    s = TrainingSession(tiny_scene, tiny_config)
+    seen_versions = []
+
+    def train():
+        for _ in range(3):
+            s.step()
+            s.publish("canonical")
+
+    t = threading.Thread(target=train)
+    t.start()
+    while t.is_alive():
+        seen_versions.append(s.snapshots.latest().version)
+    t.join()
+    final = s.snapshots.latest()
+    assert final.version == 3 and final.step == 3
+    assert seen_versions == sorted(seen_versions)
