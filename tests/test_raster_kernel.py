@@ -232,29 +232,27 @@ def test_equal_depths_are_taken_in_index_order():
     assert want_hit[5, 6] == 1  # Gaussian 0 (alpha 0.45) is below the threshold, 1 comes next
 
 
-def test_kernel_matches_reference_float64_random():
-    cam = camera_for(40, 32)
-    tensors, depths, boxes = stage_inputs(random_scene(120, seed=1), cam)
+def assert_kernel_matches_reference_float64(scene, cam, label):
+    """Float64 compiled kernel against the float64 reference: images, alpha and every gradient to
+    1e-10, identical first-hit ids; returns the reference's (image, alpha, first_hit, grads)."""
+    tensors, depths, boxes = stage_inputs(scene, cam)
     k = composite(cpu_backend.rasterize_cpu, tensors, depths, boxes, cam.width, cam.height)
     r = composite(rasterize_reference, tensors, depths, boxes, cam.width, cam.height)
     errors = {"image": float((k[0] - r[0]).abs().max()), "alpha": float((k[1] - r[1]).abs().max())}
     errors |= {f"grad {n}": rel_err(a, b) for n, a, b in zip(["means2d", "conics", "opac", "feat", "bg"], k[3], r[3])}
-    print("float64 kernel vs reference, random scene:", {n: f"{e:.1e}" for n, e in errors.items()})
+    print(f"float64 kernel vs reference, {label}:", {n: f"{e:.1e}" for n, e in errors.items()})
     assert all(e < 1e-10 for e in errors.values()), errors
     assert torch.equal(k[2], r[2])
+    return r
+
+
+def test_kernel_matches_reference_float64_random():
+    r = assert_kernel_matches_reference_float64(random_scene(120, seed=1), camera_for(40, 32), "random scene")
     assert (r[2] >= 0).sum() > 50
 
 
 def test_kernel_matches_reference_float64_body():
-    cam = body_camera(80)
-    tensors, depths, boxes = stage_inputs(body_scene(2400), cam)
-    k = composite(cpu_backend.rasterize_cpu, tensors, depths, boxes, cam.width, cam.height)
-    r = composite(rasterize_reference, tensors, depths, boxes, cam.width, cam.height)
-    errors = {"image": float((k[0] - r[0]).abs().max()), "alpha": float((k[1] - r[1]).abs().max())}
-    errors |= {f"grad {n}": rel_err(a, b) for n, a, b in zip(["means2d", "conics", "opac", "feat", "bg"], k[3], r[3])}
-    print("float64 kernel vs reference, body scene:", {n: f"{e:.1e}" for n, e in errors.items()})
-    assert all(e < 1e-10 for e in errors.values()), errors
-    assert torch.equal(k[2], r[2])
+    r = assert_kernel_matches_reference_float64(body_scene(2400), body_camera(80), "body scene")
     assert (r[1] > 0.999).sum() > 100, "the body must occlude itself"
 
 

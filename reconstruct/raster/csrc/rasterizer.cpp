@@ -252,6 +252,35 @@ inline int64_t channels(const torch::Tensor& features) {
   return NC > 0 ? NC : features.size(1);
 }
 
+// The read-only inputs a tile pass needs for its Gaussians (forward and backward alike): the
+// projected splats and the tile's depth-sorted list of Gaussian ids.
+template <typename T>
+struct TileInputs {
+  const T* means2d;
+  const T* conics;
+  const T* opacities;
+  const T* features;
+  const int32_t* boxes;
+  const int32_t* ids;
+  int64_t begin;  // the tile's first entry in ids
+
+  template <typename Args>
+  TileInputs(const Args& args, int64_t tile)
+      : means2d(args.means2d.template data_ptr<T>()),
+        conics(args.conics.template data_ptr<T>()),
+        opacities(args.opacities.template data_ptr<T>()),
+        features(args.features.template data_ptr<T>()),
+        boxes(args.boxes.template data_ptr<int32_t>()),
+        ids(args.tile_gaussians.template data_ptr<int32_t>()),
+        begin(args.tile_offsets.template data_ptr<int64_t>()[tile]) {}
+
+  // The k-th Gaussian of the tile's list, and its box clipped to the tile.
+  Splat<T> splat(int64_t k, int64_t C) const { return Splat<T>(means2d, conics, opacities, features, ids[k], C); }
+  Box box(int64_t k, int tx0, int ty0, const TileGrid& grid) const {
+    return clip_to_tile(load_box(boxes, ids[k]), tx0, ty0, grid);
+  }
+};
+
 template <typename T>
 struct ForwardScratch {
   std::vector<T> transmittance, color, weight, row;
@@ -295,14 +324,9 @@ void write_forward_tile(int64_t tile, const TileGrid& grid, const ForwardArgs& a
 template <typename T, int NC>
 void forward_tile(int64_t tile, const TileGrid& grid, const ForwardArgs& args, ForwardScratch<T>& s) {
   const int64_t C = channels<NC>(args.features);
-  const T* means2d = args.means2d.data_ptr<T>();
-  const T* conics = args.conics.data_ptr<T>();
-  const T* opacities = args.opacities.data_ptr<T>();
-  const T* features = args.features.data_ptr<T>();
-  const int32_t* boxes = args.boxes.data_ptr<int32_t>();
-  const int32_t* ids = args.tile_gaussians.data_ptr<int32_t>();
-  const int64_t begin = args.tile_offsets.data_ptr<int64_t>()[tile];
-  const int64_t end = args.tile_offsets.data_ptr<int64_t>()[tile + 1];
+  const TileInputs<T> in(args, tile);
+  const int64_t begin = in.begin;
+  const int64_t end = args.tile_offsets.template data_ptr<int64_t>()[tile + 1];
   const int tx0 = grid.x0(tile), ty0 = grid.y0(tile);
   const int tw = std::min(kTile, grid.width - tx0), th = std::min(kTile, grid.height - ty0);
   const T hit_threshold = T(args.hit_threshold);
@@ -323,9 +347,9 @@ void forward_tile(int64_t tile, const TileGrid& grid, const ForwardArgs& args, F
   int alive_count = tw * th;
 
   for (int64_t k = begin; k < end && alive_count > 0; ++k) {
-    const int64_t g = ids[k];
-    const Splat<T> sp(means2d, conics, opacities, features, g, C);
-    const Box b = clip_to_tile(load_box(boxes, g), tx0, ty0, grid);
+    const int64_t g = in.ids[k];
+    const Splat<T> sp = in.splat(k, C);
+    const Box b = in.box(k, tx0, ty0, grid);
     const uint32_t columns = column_mask(b.x_lo - tx0, b.x_hi - tx0);
     for (int y = b.y_lo; y <= b.y_hi; ++y) {
       uint32_t bits = alive[y - ty0] & columns;
@@ -483,15 +507,10 @@ struct ShapeGrad {
 template <typename T, int NC>
 void backward_tile(int64_t tile, const TileGrid& grid, const BackwardArgs& args, BackwardScratch<T>& s) {
   const int64_t C = channels<NC>(args.features);
-  const T* means2d = args.means2d.data_ptr<T>();
-  const T* conics = args.conics.data_ptr<T>();
-  const T* opacities = args.opacities.data_ptr<T>();
-  const T* features = args.features.data_ptr<T>();
-  const int32_t* boxes = args.boxes.data_ptr<int32_t>();
-  const int32_t* ids = args.tile_gaussians.data_ptr<int32_t>();
+  const TileInputs<T> in(args, tile);
   const int64_t* slots = args.tile_slots.data_ptr<int64_t>();
   T* buffer = args.buffer.data_ptr<T>();
-  const int64_t begin = args.tile_offsets.data_ptr<int64_t>()[tile];
+  const int64_t begin = in.begin;
   const int tx0 = grid.x0(tile), ty0 = grid.y0(tile);
   const int64_t end = load_backward_state(tile, grid, args, s);
 
@@ -514,9 +533,9 @@ void backward_tile(int64_t tile, const TileGrid& grid, const BackwardArgs& args,
 
   for (int64_t k = end - 1; k >= begin; --k) {
     for (int p = s.starting[k - begin]; p >= 0; p = s.next_starting[p]) active[p / kTile] |= 1u << (p % kTile);
-    const int64_t g = ids[k];
-    const Splat<T> sp(means2d, conics, opacities, features, g, C);
-    const Box b = clip_to_tile(load_box(boxes, g), tx0, ty0, grid);
+    const int64_t g = in.ids[k];
+    const Splat<T> sp = in.splat(k, C);
+    const Box b = in.box(k, tx0, ty0, grid);
     const uint32_t columns = column_mask(b.x_lo - tx0, b.x_hi - tx0);
     ShapeGrad<T> shape;
     std::fill(grad_feature, grad_feature + C, T(0));
