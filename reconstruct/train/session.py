@@ -138,7 +138,7 @@ class TrainingSession:
         tgt = self._targets[i]
         refine = self.pose_optimizer is not None and self.progress >= cfg.pose_refinement_start
         canon = self.model.canonical()
-        transforms = self.frame_transforms(i, refined=refine) if refine else self.frame_transforms(i, refined=False)
+        transforms = self.frame_transforms(i, refined=refine)
         posed = self.model.pose(canon, transforms)
         r = render_avatar(posed, tgt["camera"], self.background, normals=self.use_normals, first_hit=True,
                           hit_threshold=cfg.hit_threshold)
