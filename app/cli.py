@@ -100,6 +100,39 @@ def _cmd_eval(args) -> int:
     return evaluate(args.run, as_json=args.json)
 
 
+def _cmd_export(args) -> int:
+    import json
+
+    from app.export import VIDEO_SUFFIXES, check_destination, export_orbit, export_poses
+    from reconstruct.data.load import load_scene
+    from reconstruct.train.checkpoint import CheckpointError
+    from reconstruct.train.session import CHECKPOINT_NAME, TrainingSession
+
+    info_path = args.run / "run.json"
+    if not info_path.is_file():
+        raise CheckpointError(f"{args.run}: not a training run (no run.json)")
+    if not (args.run / CHECKPOINT_NAME).is_file():
+        raise CheckpointError(f"{args.run / CHECKPOINT_NAME}: no checkpoint to export")
+    if args.orbit is not None and args.orbit < 1:
+        raise ValueError(f"--orbit must be at least 1, found {args.orbit}")
+    check_destination(args.out, suffixes=VIDEO_SUFFIXES)  # before any loading or rendering
+    info = json.loads(info_path.read_text())
+    scene = load_scene(info["scene"], progress=False)
+    session = TrainingSession.resume(scene, args.run)
+    common = {"mode": args.mode, "progress": not args.quiet}
+    if args.orbit is not None:
+        fps = 30 if args.fps is None else args.fps
+        out = export_orbit(session, args.out, frames=args.orbit, size=args.size, fps=fps, frame_index=args.frame,
+                           **common)
+    else:
+        poses = load_scene(args.poses, progress=False)
+        if poses.name == scene.name:
+            poses = scene  # the run's own scene: use the session's (possibly refined) poses
+        out = export_poses(session, args.out, scene=poses, size=args.size, fps=args.fps, **common)
+    print(f"wrote {out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="wonderhuman-studio",
                                 description="Animatable 3D Gaussian avatars from monocular front-view video.")
@@ -147,6 +180,21 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("run", type=Path)
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=_cmd_eval)
+
+    s = sub.add_parser("export", help="render a trained avatar as a video (.mp4/.gif): 360° orbit or a scene's poses")
+    s.add_argument("run", type=Path)
+    what = s.add_mutually_exclusive_group(required=True)
+    what.add_argument("--orbit", type=int, metavar="N", help="a full orbit of N frames around the avatar")
+    what.add_argument("--poses", metavar="SCENE", help="one frame per pose of SCENE (folder or synthetic:...), "
+                                                       "seen from its training camera")
+    s.add_argument("--out", required=True, type=Path, help="output file (.mp4 or .gif)")
+    s.add_argument("--size", type=int, default=512, help="frame size in pixels (longer side for --poses)")
+    s.add_argument("--fps", type=float, default=None,
+                   help="frames per second (default 30 for --orbit, the scene's for --poses)")
+    s.add_argument("--frame", type=int, default=0, help="pose (frame index) the orbit shows")
+    s.add_argument("--mode", default="rgb", choices=["rgb", "normal", "depth", "alpha", "visibility"])
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(func=_cmd_export)
 
     s = sub.add_parser("demo", help="the headless pipeline on the built-in demo scene")
     s.add_argument("--scene", default=DEFAULT_SCENE)
