@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from reconstruct.atomic import atomic_output
 
 
 def write_comparison_sheet(session, path: str | Path, *, frame_index: int | None = None) -> Path:
@@ -43,8 +44,7 @@ def write_comparison_sheet(session, path: str | Path, *, frame_index: int | None
     axes[1, 0].set_ylabel(f"avatar (step {session.step_count})", fontsize=8)
     fig.tight_layout()
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=100, facecolor="white")
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=100, facecolor="white")
     plt.close(fig)
-    tmp.replace(path)
     return path

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from reconstruct.data.scene import Scene
+from reconstruct.atomic import atomic_output
 
 
 def _normal_rgb(normal: np.ndarray | None, like: np.ndarray) -> np.ndarray:
@@ -45,8 +46,7 @@ def write_contact_sheet(scene: Scene, path: str | Path, *, frame_index: int | No
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=dpi, facecolor="white")
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, facecolor="white")
     plt.close(fig)
-    tmp.replace(path)
     return path

@@ -11,16 +11,12 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Iterable
 
 import numpy as np
+from reconstruct.atomic import atomic_output
 
-# the process umask, read once at import (reading it means setting it, which is not thread-safe)
-_UMASK = os.umask(0o022)
-os.umask(_UMASK)
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 IMAGE_SUFFIXES = (".png",)
@@ -48,23 +44,6 @@ def check_destination(out_path, *, suffixes=SUPPORTED_SUFFIXES, size: tuple[int,
         if w % 2 or h % 2:
             raise ValueError(f"{out}: mp4 (H.264, yuv420p) needs an even frame size, found {w}x{h}")
     return out
-
-
-@contextmanager
-def atomic_output(out_path) -> Iterator[Path]:
-    """Yields a hidden temporary path next to ``out_path`` (same suffix); renames it over the
-    target when the block ends normally, deletes it on any error (the target is left untouched)."""
-    out = Path(out_path)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=out.suffix, dir=out.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes it 0600; give the result an ordinary file's mode
-    try:
-        yield tmp
-        os.replace(tmp, out)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 # ----------------------------------------------------------------------------- writers

@@ -14,7 +14,7 @@ def test_training_reduces_the_loss_and_marks_visibility(tiny_scene, tiny_config)
     s = TrainingSession(tiny_scene, tiny_config)
     first = [s.step()["rgb"] for _ in range(4)]
     for _ in range(40):
-        out = s.step()
+        s.step()
     last = [s.step()["rgb"] for _ in range(4)]
     assert np.mean(last) < 0.7 * np.mean(first)
     snap = s.make_snapshot("canonical")

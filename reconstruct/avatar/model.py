@@ -55,7 +55,6 @@ class AvatarModel(nn.Module):
             raise ValueError(f"UV map resolution {uv.resolution} != AvatarConfig.gaussian_resolution {config.gaussian_resolution}")
         self.uv_map = uv
         self.body_name = body.name
-        n = len(uv)
         R = uv.resolution
         rc = torch.as_tensor(uv.texel_rc, dtype=torch.float32)
         grid = torch.stack([(rc[:, 1] + 0.5) / R * 2 - 1, (rc[:, 0] + 0.5) / R * 2 - 1], dim=1)

@@ -6,7 +6,6 @@ import math
 import os
 import sys
 import threading
-import time
 from functools import lru_cache
 from pathlib import Path
 

@@ -3,11 +3,12 @@ one, so a crash at any moment leaves either the previous or the new checkpoint, 
 
 from __future__ import annotations
 
-import io
 import os
 from pathlib import Path
 
 import torch
+
+from ..atomic import atomic_output
 
 FORMAT = "wonderhuman-checkpoint"
 VERSION = 1
@@ -20,18 +21,8 @@ class CheckpointError(ValueError):
 def save_checkpoint(state: dict, path: str | os.PathLike) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()
-    torch.save({"format": FORMAT, "version": VERSION, **state}, buf)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(buf.getbuffer())
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with atomic_output(path, fsync=True) as tmp:
+        torch.save({"format": FORMAT, "version": VERSION, **state}, tmp)
     return path
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .metrics_log import MetricsLog
+from ..atomic import atomic_output
 
 
 def error_vs_time_table(records: list[dict]) -> str:
@@ -42,8 +43,7 @@ def plot_error_vs_time(run_dir: str | Path, out: str | Path | None = None) -> Pa
         ax.legend(fontsize=8)
     fig.suptitle(f"{run_dir.name}: error against run time", fontsize=10)
     fig.tight_layout()
-    tmp = out.with_name(f".{out.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_output(out) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    tmp.replace(out)
     return out
