@@ -1,4 +1,4 @@
-"""``wonderhuman-studio`` command line: the studio window (later), and headless subcommands."""
+"""``wonderhuman-studio`` command line: the studio window (no subcommand), and headless subcommands."""
 
 from __future__ import annotations
 
@@ -133,9 +133,29 @@ def _cmd_export(args) -> int:
     return 0
 
 
+def _cmd_studio(args) -> int:
+    from app.studio.window import NO_DISPLAY_MESSAGE, NoDisplayError, display_available
+
+    if not display_available():
+        print(NO_DISPLAY_MESSAGE)
+        return 1
+    from app.studio.window import run_studio
+
+    try:
+        return run_studio(args.studio_scene, args.studio_run)
+    except NoDisplayError:
+        print(NO_DISPLAY_MESSAGE)
+        return 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="wonderhuman-studio",
-                                description="Animatable 3D Gaussian avatars from monocular front-view video.")
+                                description="Animatable 3D Gaussian avatars from monocular front-view video. "
+                                            "With no subcommand: the interactive studio window.")
+    p.add_argument("--scene", dest="studio_scene", metavar="SCENE", default=DEFAULT_SCENE,
+                   help="studio: scene folder or synthetic:seed=S to train on")
+    p.add_argument("--run", dest="studio_run", metavar="RUN", type=Path, default=None,
+                   help="studio: run folder (resumes its checkpoint; saved to on exit)")
     sub = p.add_subparsers(dest="command")
 
     s = sub.add_parser("synth", help="write a synthetic scene folder (body, clothing, motion, cameras, ground truth)")
@@ -209,8 +229,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
-        parser.print_help()
-        return 0
+        args.command = "studio"
+        args.func = _cmd_studio
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError, RuntimeError, ArithmeticError) as exc:

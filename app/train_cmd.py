@@ -36,30 +36,19 @@ class RunLock:
 
 
 def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True) -> int:
-    from reconstruct.data.load import load_scene
-    from reconstruct.train.checkpoint import CheckpointError
+    from app.run_setup import open_session
     from reconstruct.train.report import error_vs_time_table, plot_error_vs_time
-    from reconstruct.train.session import CHECKPOINT_NAME, TrainingSession, write_run_info
 
     run_dir.mkdir(parents=True, exist_ok=True)
     with RunLock(run_dir):
-        scene = load_scene(scene_spec, progress=progress)
-        print(scene.summary(), file=sys.stderr)
-        if (run_dir / CHECKPOINT_NAME).exists():
-            try:
-                session = TrainingSession.resume(scene, run_dir, config)
-            except CheckpointError as exc:
-                raise CheckpointError(f"{exc}; the run folder is left as it is (move the checkpoint away to start over)") from exc
-            session.log.truncate_after(session.step_count)  # steps after the checkpoint are redone
-            print(f"resuming {run_dir} at step {session.step_count}", file=sys.stderr)
-        else:
-            session = TrainingSession(scene, config, run_dir, scene_spec=scene_spec)
-            write_run_info(run_dir, scene_spec, config)
+        session = open_session(scene_spec, run_dir, config, progress=progress)
+        config = session.config
         if session.lpips_note:
             print(session.lpips_note, file=sys.stderr)
         if not session.use_normals:
             print("normal loss left out: the scene has no normal maps", file=sys.stderr)
-        print(f"{session.model.num_gaussians} Gaussians, images {scene.image_size[0]}x{scene.image_size[1]}, "
+        width, height = session.scene.image_size
+        print(f"{session.model.num_gaussians} Gaussians, images {width}x{height}, "
               f"target {config.iters} steps" + (f" or {config.minutes:g} min" if config.minutes else ""), file=sys.stderr)
         session.maybe_evaluate(force=session.step_count == 0)
         bar = tqdm(total=config.iters, initial=session.step_count, desc="stage I", disable=not progress, unit="it")
