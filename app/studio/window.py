@@ -216,10 +216,12 @@ class StudioApp:
 
 def run_studio(scene_spec: str, run_dir=None, *, config=None, size=(1280, 800), max_frames: int | None = None,
                script: Callable[[StudioApp], None] | None = None, screenshot=None, publish_every: int = 5,
-               progress: bool = True) -> int:
+               progress: bool = True, max_fps: float = 30.0) -> int:
     """Open the studio on ``scene_spec`` (training a new avatar, or resuming ``run_dir``'s checkpoint)
     and run until the window closes, ``max_frames`` frames were drawn, or ``script`` calls
-    ``app.close()``. ``screenshot``: PNG of the last frame. Raises NoDisplayError without a display."""
+    ``app.close()``. ``screenshot``: PNG of the last frame. ``max_fps`` caps the GUI's frame rate:
+    the GUI and the training thread share the interpreter, and an uncapped GUI (70 frames/s on
+    llvmpipe) halved the training speed. Raises NoDisplayError without a display."""
     import moderngl
 
     win = open_window(*size)  # the window's GLX context first, before anything could make an EGL one
@@ -241,8 +243,12 @@ def run_studio(scene_spec: str, run_dir=None, *, config=None, size=(1280, 800), 
         trainer = TrainerThread(session, publish_every=publish_every)
         app = StudioApp(win, ctx, session, trainer)
         trainer.start()
+        frame_time = 1.0 / max_fps if max_fps else 0.0
+        next_frame = time.perf_counter()
         while not glfw.window_should_close(win) and not app.should_close:
-            glfw.poll_events()
+            next_frame += frame_time
+            glfw.wait_events_timeout(max(0.0, next_frame - time.perf_counter()))  # sleeps, freeing the GIL
+            next_frame = max(next_frame, time.perf_counter())
             imgui.backends.opengl3_new_frame()
             imgui.backends.glfw_new_frame()
             imgui.new_frame()
