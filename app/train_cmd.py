@@ -54,15 +54,12 @@ def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True) -> i
         bar = tqdm(total=config.iters, initial=session.step_count, desc="stage I", disable=not progress, unit="it")
         try:
             while not session.done:
-                out = session.step()
+                out, _ = session.advance()
                 bar.update()
                 if session.step_count % 25 == 0:
-                    session.log_step(out)
                     bar.set_postfix(loss=f"{out['loss']:.4f}", psnr=f"{out['psnr_train']:.1f}",
                                     seen=f"{session.latest.get('seen_psnr', float('nan')):.1f}",
                                     unseen=f"{session.latest.get('unseen_psnr', float('nan')):.1f}")
-                session.maybe_evaluate()
-                session.maybe_save()
         finally:
             bar.close()
             session.save()

@@ -135,16 +135,12 @@ class TrainerThread:
                     time.sleep(self.idle_sleep)
                     t_last = time.perf_counter()
                     continue
-                out = s.step()
+                _, evaluated = s.advance(self.log_every)
                 now = time.perf_counter()
-                dt = max(now - t_last, 1e-6)
+                if evaluated is None:  # steps per second of training, evaluations left out
+                    dt = max(now - t_last, 1e-6)
+                    self.its = 1.0 / dt if self.its == 0 else 0.9 * self.its + 0.1 / dt
                 t_last = now
-                self.its = 1.0 / dt if self.its == 0 else 0.9 * self.its + 0.1 / dt
-                if s.step_count % self.log_every == 0:
-                    s.log_step(out)
-                if s.maybe_evaluate() is not None:
-                    t_last = time.perf_counter()
-                s.maybe_save()
                 self._record()
                 c = self.controls.get()
                 changed = self._published is None or self._published[:2] != (c.space, c.frame_index)

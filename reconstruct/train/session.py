@@ -212,6 +212,16 @@ class TrainingSession:
             self.log.append(record)
         return record
 
+    def advance(self, log_every: int = 25) -> tuple[dict, dict | None]:
+        """One step of a run: ``step()``, a training record every ``log_every`` steps, the periodic
+        evaluation and checkpoint. Returns the step's values and the evaluation record (or None)."""
+        out = self.step()
+        if self.step_count % log_every == 0:
+            self.log_step(out)
+        record = self.maybe_evaluate()
+        self.maybe_save()
+        return out, record
+
     def log_step(self, out: dict) -> None:
         if self.log:
             self.log.append({"kind": "train", "step": self.step_count, "elapsed": round(self.elapsed, 3), "stage": 1,
