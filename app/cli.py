@@ -76,9 +76,7 @@ def _stage1_config(args):
         kw[key] = tuple(float(v) for v in value.split(",")) if isinstance(default, tuple) else (
             value.lower() in ("1", "true", "yes") if isinstance(default, bool) else type(default)(value)
             if default is not None else float(value))
-    if "iters" in kw and kw["iters"] < 1:
-        raise ValueError(f"--iters must be at least 1, found {kw['iters']}")
-    return Stage1Config(**kw)
+    return Stage1Config(**kw)  # checks its values (e.g. --iters must be at least 1)
 
 
 def _cmd_train(args) -> int:
@@ -91,7 +89,8 @@ def _cmd_train(args) -> int:
 
         if not torch.cuda.is_available():
             raise RuntimeError("--device cuda: CUDA is not available on this machine")
-    return train(args.scene, args.out, _stage1_config(args), progress=not args.quiet)
+    train(args.scene, args.out, _stage1_config(args), progress=not args.quiet)
+    return 0
 
 
 def _cmd_eval(args) -> int:
@@ -101,24 +100,16 @@ def _cmd_eval(args) -> int:
 
 
 def _cmd_export(args) -> int:
-    import json
-
     from app.export import VIDEO_SUFFIXES, check_destination, export_orbit, export_poses
+    from app.run_setup import check_run, resume_run
     from reconstruct.data.load import load_scene
-    from reconstruct.train.checkpoint import CheckpointError
-    from reconstruct.train.session import CHECKPOINT_NAME, TrainingSession
 
-    info_path = args.run / "run.json"
-    if not info_path.is_file():
-        raise CheckpointError(f"{args.run}: not a training run (no run.json)")
-    if not (args.run / CHECKPOINT_NAME).is_file():
-        raise CheckpointError(f"{args.run / CHECKPOINT_NAME}: no checkpoint to export")
+    info = check_run(args.run, "export")
     if args.orbit is not None and args.orbit < 1:
         raise ValueError(f"--orbit must be at least 1, found {args.orbit}")
     check_destination(args.out, suffixes=VIDEO_SUFFIXES)  # before any loading or rendering
-    info = json.loads(info_path.read_text())
-    scene = load_scene(info["scene"], progress=False)
-    session = TrainingSession.resume(scene, args.run)
+    session = resume_run(args.run, info)
+    scene = session.scene
     common = {"mode": args.mode, "progress": not args.quiet}
     if args.orbit is not None:
         fps = 30 if args.fps is None else args.fps

@@ -1,6 +1,6 @@
-"""The main job on the built-in demo scene, headless: build (or load) the synthetic scene, write its
-contact sheet, train Stage I for a few minutes with the error-vs-time log, evaluate seen and unseen
-views, and write a comparison sheet of the avatar against the ground truth."""
+"""The main job on the built-in demo scene, headless: build (or load) the synthetic scene, train
+Stage I for a few minutes with the error-vs-time log and seen/unseen evaluations, then write the
+scene's contact sheet and a comparison sheet of the avatar against the ground truth."""
 
 from __future__ import annotations
 
@@ -9,19 +9,15 @@ from pathlib import Path
 from app.comparison import write_comparison_sheet
 from app.contact_sheet import write_contact_sheet
 from app.train_cmd import train
-from reconstruct.data.load import load_scene
 from reconstruct.train.config import Stage1Config
-from reconstruct.train.session import TrainingSession
 
 
 def run_demo(spec: str, out: Path, *, minutes: float = 3.0, threads: int | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
-    scene = load_scene(spec)
-    print(f"contact sheet: {write_contact_sheet(scene, out / 'contact_sheet.png')}")
     run = out / "run"
     config = Stage1Config(iters=10 ** 7, minutes=minutes, eval_every_seconds=max(15.0, 10.0 * minutes), threads=threads)
-    train(spec, run, config)
-    session = TrainingSession.resume(scene, run)
+    session = train(spec, run, config)
+    print(f"contact sheet: {write_contact_sheet(session.scene, out / 'contact_sheet.png')}")
     print(f"comparison: {write_comparison_sheet(session, out / 'comparison.png')}")
     print(f"error against run time: {run / 'error_vs_time.png'}; metrics: {run / 'metrics.jsonl'}")
     return 0

@@ -34,3 +34,27 @@ def open_session(scene_spec: str, run_dir: str | Path | None = None, config=None
     session = TrainingSession(scene, config, run_dir, scene_spec=scene_spec)
     write_run_info(run_dir, scene_spec, config)
     return session
+
+
+def check_run(run_dir: Path, what: str) -> dict:
+    """The run's ``run.json`` after checking that ``run_dir`` is a training run with a checkpoint;
+    ``what`` names the use in the error ("evaluate", "export")."""
+    import json
+
+    from reconstruct.train.checkpoint import CheckpointError
+    from reconstruct.train.session import CHECKPOINT_NAME
+
+    info_path = Path(run_dir) / "run.json"
+    if not info_path.is_file():
+        raise CheckpointError(f"{run_dir}: not a training run (no run.json)")
+    if not (Path(run_dir) / CHECKPOINT_NAME).is_file():
+        raise CheckpointError(f"{Path(run_dir) / CHECKPOINT_NAME}: no checkpoint to {what}")
+    return json.loads(info_path.read_text())
+
+
+def resume_run(run_dir: Path, info: dict):
+    """The session of a checked run (``check_run``), resumed on its own scene and settings."""
+    from reconstruct.data.load import load_scene
+    from reconstruct.train.session import TrainingSession
+
+    return TrainingSession.resume(load_scene(info["scene"], progress=False), run_dir)

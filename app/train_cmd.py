@@ -35,7 +35,8 @@ class RunLock:
         self.path.unlink(missing_ok=True)
 
 
-def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True) -> int:
+def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True):
+    """Train until the run's steps or minutes are used up; returns the session."""
     from app.run_setup import open_session
     from reconstruct.train.report import error_vs_time_table, plot_error_vs_time
 
@@ -68,23 +69,15 @@ def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True) -> i
         records = session.log.read("eval")
         print(error_vs_time_table(records))
         print(f"wrote {plot_error_vs_time(run_dir)}", file=sys.stderr)
-    return 0
+    return session
 
 
 def evaluate(run_dir: Path, *, as_json: bool) -> int:
-    from reconstruct.data.load import load_scene
-    from reconstruct.train.checkpoint import CheckpointError
+    from app.run_setup import check_run, resume_run
     from reconstruct.train.report import plot_error_vs_time
-    from reconstruct.train.session import CHECKPOINT_NAME, TrainingSession
 
-    info_path = run_dir / "run.json"
-    if not info_path.is_file():
-        raise CheckpointError(f"{run_dir}: not a training run (no run.json)")
-    info = json.loads(info_path.read_text())
-    if not (run_dir / CHECKPOINT_NAME).is_file():
-        raise CheckpointError(f"{run_dir / CHECKPOINT_NAME}: no checkpoint to evaluate")
-    scene = load_scene(info["scene"], progress=False)
-    session = TrainingSession.resume(scene, run_dir)
+    info = check_run(run_dir, "evaluate")
+    session = resume_run(run_dir, info)
     rows, summary = session.evaluate()
     result = {"run": str(run_dir), "scene": info["scene"], "step": session.step_count, **summary, "views": rows}
     if session.lpips_note:
