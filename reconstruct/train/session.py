@@ -193,7 +193,7 @@ class TrainingSession:
         t0 = time.perf_counter()
         with torch.no_grad():
             canon = self.model.canonical()
-            rows, summary = evaluate_views(self.model, canon, self.scene, lambda i: self.frame_transforms(i), self.background,
+            rows, summary = evaluate_views(self.model, canon, self.scene, self.frame_transforms, self.background,
                                            lpips=self.lpips, views=views)
         self.elapsed += time.perf_counter() - t0
         self.latest.update({k: v for k, v in summary.items() if v is not None})
