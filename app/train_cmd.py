@@ -57,7 +57,7 @@ def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True):
             while not session.done:
                 out, _ = session.advance()
                 bar.update()
-                if session.step_count % 25 == 0:
+                if session.step_count % 25 == 0 and not out.get("skipped"):
                     bar.set_postfix(loss=f"{out['loss']:.4f}", psnr=f"{out['psnr_train']:.1f}",
                                     seen=f"{session.latest.get('seen_psnr', float('nan')):.1f}",
                                     unseen=f"{session.latest.get('unseen_psnr', float('nan')):.1f}")

@@ -27,6 +27,7 @@ from .render import crop_camera, mask_box, render_avatar
 from .schedule import step_decay
 
 CHECKPOINT_NAME = "checkpoint.pt"
+GOOD_STATE_EVERY = 100  # steps between in-memory copies of the last good state
 
 
 class TrainingSession:
@@ -72,6 +73,9 @@ class TrainingSession:
         self.log = MetricsLog(self.run_dir / "metrics.jsonl") if self.run_dir else None
         self._last_eval = -math.inf
         self._last_ckpt = 0.0
+        self.nonfinite_skipped = 0  # steps skipped for a non-finite loss or gradient
+        self.restored_states = 0  # times a non-finite parameter brought back the last good state
+        self._last_good: dict | None = None
 
     # ----- data ---------------------------------------------------------------------------
     def _prepare_frame(self, i: int) -> dict:
@@ -158,22 +162,73 @@ class TrainingSession:
             terms["lpips"] = self.lpips(r.rgb[None].clamp(0, 1), tgt["image"][None]).mean()
             weights["lpips"] = cfg.lambda_lpips
         loss = sum(weights[k] * v for k, v in terms.items())
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"step {self.step_count}: non-finite loss {float(loss)} "
-                                     f"({ {k: float(v) for k, v in terms.items()} })")
-        self.optimizer.zero_grad(set_to_none=True)
-        if self.pose_optimizer is not None:
-            self.pose_optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        self.optimizer.step()
-        if refine:
-            self.pose_optimizer.step()
+        optimizers = [self.optimizer] + ([self.pose_optimizer] if refine else [])
+        if not self._guarded_update(loss, optimizers):
+            return self._skipped_step(i, t0, terms)
         self._mark_seen(r.first_hit, posed, tgt["camera"])
         self.step_count += 1
         self.elapsed += time.perf_counter() - t0
         out = {"loss": float(loss.detach()), **{k: float(v.detach()) for k, v in terms.items()}, "frame": i,
                "psnr_train": float(-10 * torch.log10(terms["rgb"].detach().clamp_min(1e-12)))}
         self.latest.update(out)
+        return out
+
+    # ----- guards against non-finite numbers -------------------------------------------------
+    def _trainable(self) -> list[torch.Tensor]:
+        return [p for g in self.optimizer.param_groups for p in g["params"]] + [self.pose_delta]
+
+    def _guarded_update(self, loss: torch.Tensor, optimizers: list) -> bool:
+        """Backward and step unless the loss or a gradient is non-finite; after the step, a
+        non-finite parameter restores the last good state. False when the step was not taken."""
+        if not torch.isfinite(loss):
+            return False
+        for opt in optimizers:
+            opt.zero_grad(set_to_none=True)
+        if self.pose_optimizer is not None:
+            self.pose_optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        params = self._trainable()
+        if not all(bool(torch.isfinite(p.grad).all()) for p in params if p.grad is not None):
+            return False
+        if self.step_count % GOOD_STATE_EVERY == 0 or self._last_good is None:
+            self._keep_good_state()
+        for opt in optimizers:
+            opt.step()
+        if not all(bool(torch.isfinite(p).all()) for p in params):
+            self._restore_good_state()
+            return False
+        return True
+
+    def _keep_good_state(self) -> None:
+        import copy
+
+        self._last_good = copy.deepcopy({"model": self.model.state_dict(), "pose_delta": self.pose_delta.detach(),
+                                         "optimizers": [o.state_dict() for o in self._optimizers()]})
+
+    def _restore_good_state(self) -> None:
+        good = self._last_good
+        self.model.load_state_dict(good["model"])
+        with torch.no_grad():
+            self.pose_delta.copy_(good["pose_delta"])
+        for opt, sd in zip(self._optimizers(), good["optimizers"]):
+            opt.load_state_dict(sd)
+        self.restored_states += 1
+
+    def _optimizers(self) -> list:
+        return [self.optimizer] + ([self.pose_optimizer] if self.pose_optimizer is not None else [])
+
+    def _skipped_step(self, frame: int, t0: float, terms: dict) -> dict:
+        """A step whose numbers were not finite: nothing was changed (or the last good state was
+        restored); the step still counts so a run cannot loop forever on a bad frame."""
+        self.nonfinite_skipped += 1
+        self.step_count += 1
+        self.elapsed += time.perf_counter() - t0
+        bad = {k: float(v.detach()) for k, v in terms.items()}
+        print(f"step {self.step_count}: non-finite loss or gradient on frame {frame} ({bad}); step skipped "
+              f"({self.nonfinite_skipped} so far)", file=sys.stderr)
+        out = {"skipped": True, "frame": frame, "nonfinite_skipped": self.nonfinite_skipped,
+               "restored_states": self.restored_states}
+        self.latest.update({"nonfinite_skipped": self.nonfinite_skipped, "restored_states": self.restored_states})
         return out
 
     @torch.no_grad()
@@ -216,7 +271,7 @@ class TrainingSession:
         """One step of a run: ``step()``, a training record every ``log_every`` steps, the periodic
         evaluation and checkpoint. Returns the step's values and the evaluation record (or None)."""
         out = self.step()
-        if self.step_count % log_every == 0:
+        if self.step_count % log_every == 0 or out.get("skipped"):
             self.log_step(out)
         record = self.maybe_evaluate()
         self.maybe_save()
@@ -265,6 +320,8 @@ class TrainingSession:
             "epoch_order": list(self.epoch_order),
             "rng": {"numpy": self.rng.bit_generator.state, "torch": torch.get_rng_state(), "python": random.getstate()},
             "latest": self.latest,
+            "nonfinite_skipped": self.nonfinite_skipped,
+            "restored_states": self.restored_states,
         }
 
     def save(self, path: str | Path | None = None) -> Path:
@@ -304,6 +361,8 @@ class TrainingSession:
         torch.set_rng_state(state["rng"]["torch"])
         random.setstate(state["rng"]["python"])
         self.latest = dict(state.get("latest", {}))
+        self.nonfinite_skipped = int(state.get("nonfinite_skipped", 0))
+        self.restored_states = int(state.get("restored_states", 0))
 
     @classmethod
     def resume(cls, scene: Scene, run_dir: str | Path, config: Stage1Config | None = None) -> "TrainingSession":

@@ -1,0 +1,100 @@
+"""Stage II configuration with the paper's defaults (Sec. 3.2-3.3, Appendix A.2).
+
+Stage II continues a Stage I run: the Stage I loss (its weights come from the run's Stage I
+settings) plus λ_p‖P‖ and λ_SDS (L_SDS^o + L_SDS^c) on the selected unseen views.
+
+Epochs. The paper halves λ_SDS every k = 100 epochs from t0 = 100 (Eq. 14) over a 3-hour GPU
+run. A CPU run here is a few thousand steps, so the schedule counts *schedule epochs* of
+``epoch_steps`` steps each (default 5: t0 = 500 steps, then halving every 500 steps); set
+``epoch_steps`` to the number of frames to count true epochs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+PRIORS = ("builtin", "zero123")
+
+
+@dataclass
+class Stage2Config:
+    # length: whichever comes first
+    iters: int = 1500
+    minutes: float | None = None
+    # the split of each epoch (A.2.1): given-view training vs dual-space SDS, canonical vs observation
+    given_view_ratio: float = 0.5
+    canonical_ratio: float = 0.5
+    canonical_sds: bool = True
+    observation_sds: bool = True
+    # losses (A.2.1)
+    lambda_sds: float = 0.3  # λ_SDS,0
+    lambda_pose_features: float = 0.5  # λ_p, Frobenius regulariser of the pose features P
+    lambda_unseen_normal: float = 0.8  # body-model normals as unseen-view normal targets (see DESIGN.md)
+    unseen_normals: bool = True
+    # progressive schedule (Eq. 14): λ_SDS(t) = λ_SDS,0 / 2^floor((t - t0) / k) for t >= t0
+    progressive: bool = True
+    sds_t0: float = 100.0
+    sds_k: float = 100.0
+    epoch_steps: int = 5
+    # pose feature injection (Eq. 12-13)
+    pose_injection: bool = True
+    pose_map_resolution: int = 128  # posed positional map fed to the encoder
+    # view selection (Eq. 8-10, A.2.2)
+    view_selection: bool = True  # False: SDS on views drawn from all candidates
+    visibility_threshold: float = 0.5
+    num_azimuths: int = 100
+    overhead_elevation_deg: float = 80.0
+    # the prior
+    prior: str = "builtin"
+    prior_path: str | None = None
+    prior_size: int = 256  # crops resized to this for the prior (A.3)
+    guidance_scale: float = 3.0  # classifier-free guidance (zero123)
+    sds_grad_clip: float = 1.0  # max gradient norm on the SDS-weighted render gradient
+    # optimiser
+    lr_decoder: float = 1e-3
+    lr_features: float = 2e-4
+    lr_pose_encoder: float = 1e-3
+    # bookkeeping
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.iters < 1:
+            raise ValueError(f"Stage II --iters must be at least 1, found {self.iters}")
+        if self.minutes is not None and self.minutes <= 0:
+            raise ValueError(f"Stage II --minutes must be positive, found {self.minutes}")
+        for name in ("given_view_ratio", "canonical_ratio"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"Stage II {name} must be in [0, 1], found {v}")
+        if not 0.0 < self.visibility_threshold < 1.0:
+            raise ValueError(f"visibility threshold must be in (0, 1), found {self.visibility_threshold}")
+        if self.sds_k <= 0:
+            raise ValueError(f"SDS halving interval k must be positive, found {self.sds_k}")
+        if self.epoch_steps < 1:
+            raise ValueError(f"epoch_steps must be at least 1, found {self.epoch_steps}")
+        if self.prior not in PRIORS:
+            raise ValueError(f"unknown prior {self.prior!r}; choose one of {', '.join(PRIORS)}")
+        if self.prior == "zero123" and not self.prior_path:
+            raise ValueError("the zero123 prior needs --prior-path DIR (a diffusers-format Zero123 folder)")
+        if self.lambda_sds < 0 or self.lambda_pose_features < 0:
+            raise ValueError("Stage II loss weights must be non-negative")
+
+    def sds_weight(self, step: int) -> float:
+        """λ_SDS at a Stage II step (Eq. 14 over schedule epochs), or the constant λ_SDS,0."""
+        from ..train.schedule import halving
+
+        if not self.progressive:
+            return self.lambda_sds
+        return halving(self.lambda_sds, step / self.epoch_steps, self.sds_t0, self.sds_k)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Stage2Config":
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown Stage II settings {sorted(unknown)}")
+        return cls(**d)
