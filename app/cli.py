@@ -82,15 +82,47 @@ def _stage1_config(args):
 def _cmd_train(args) -> int:
     from app.train_cmd import train
 
-    if args.stage != "1":
-        raise ValueError(f"--stage {args.stage}: only Stage I is available in this version")
     if args.device == "cuda":
         import torch
 
         if not torch.cuda.is_available():
             raise RuntimeError("--device cuda: CUDA is not available on this machine")
-    train(args.scene, args.out, _stage1_config(args), progress=not args.quiet)
+    train(args.scene, args.out, _stage1_config(args), progress=not args.quiet, stage=args.stage,
+          stage2=_stage2_overrides(args), allow_incomplete=args.allow_incomplete)
     return 0
+
+
+STAGE2_FLAGS = {  # command-line flag -> Stage2Config field
+    "stage2_iters": "iters", "stage2_minutes": "minutes", "prior": "prior", "prior_path": "prior_path",
+    "canonical_ratio": "canonical_ratio", "given_ratio": "given_view_ratio", "lambda_sds": "lambda_sds",
+    "sds_t0": "sds_t0", "sds_k": "sds_k", "epoch_steps": "epoch_steps",
+    "visibility_threshold": "visibility_threshold", "lambda_p": "lambda_pose_features",
+}
+STAGE2_SWITCHES = {"no_pose_injection": "pose_injection", "no_canonical_sds": "canonical_sds",
+                   "no_observation_sds": "observation_sds", "no_view_selection": "view_selection",
+                   "no_progressive": "progressive", "no_unseen_normals": "unseen_normals"}
+
+
+def _stage2_overrides(args) -> dict:
+    """The Stage II settings given on the command line (checked by Stage2Config)."""
+    import dataclasses
+
+    from reconstruct.stage2.config import Stage2Config
+
+    out = {field: getattr(args, flag) for flag, field in STAGE2_FLAGS.items() if getattr(args, flag) is not None}
+    out.update({field: False for flag, field in STAGE2_SWITCHES.items() if getattr(args, flag)})
+    fields = {f.name for f in dataclasses.fields(Stage2Config)}
+    for item in args.set2 or []:
+        if "=" not in item:
+            raise ValueError(f"--set2 expects key=value, found {item!r}")
+        key, value = item.split("=", 1)
+        if key not in fields:
+            raise ValueError(f"--set2: unknown Stage II setting {key!r}; known: {sorted(fields)}")
+        default = getattr(Stage2Config(), key)
+        out[key] = (value.lower() in ("1", "true", "yes") if isinstance(default, bool)
+                    else type(default)(value) if default is not None else value)
+    Stage2Config(**out)  # fail early on bad values
+    return out
 
 
 def _cmd_eval(args) -> int:
@@ -100,13 +132,20 @@ def _cmd_eval(args) -> int:
 
 
 def _cmd_export(args) -> int:
-    from app.export import VIDEO_SUFFIXES, check_destination, export_orbit, export_poses
+    from app.export import VIDEO_SUFFIXES, check_destination, export_novel, export_orbit, export_poses
     from app.run_setup import check_run, resume_run
     from reconstruct.data.load import load_scene
 
     info = check_run(args.run, "export")
     if args.orbit is not None and args.orbit < 1:
         raise ValueError(f"--orbit must be at least 1, found {args.orbit}")
+    if args.novel is not None:
+        from reconstruct.body.novel_poses import NOVEL_POSES
+
+        if args.novel not in NOVEL_POSES:
+            raise ValueError(f"--novel {args.novel!r}: choose one of {', '.join(NOVEL_POSES)}")
+        if args.frames < 2:
+            raise ValueError(f"--frames must be at least 2, found {args.frames}")
     check_destination(args.out, suffixes=VIDEO_SUFFIXES)  # before any loading or rendering
     session = resume_run(args.run, info)
     scene = session.scene
@@ -115,6 +154,8 @@ def _cmd_export(args) -> int:
         fps = 30 if args.fps is None else args.fps
         out = export_orbit(session, args.out, frames=args.orbit, size=args.size, fps=fps, frame_index=args.frame,
                            **common)
+    elif args.novel is not None:
+        out = export_novel(session, args.out, args.novel, frames=args.frames, size=args.size, fps=args.fps, **common)
     else:
         poses = load_scene(args.poses, progress=False)
         if poses.name == scene.name:
@@ -184,6 +225,24 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--lpips-lin", default=None, help="LPIPS linear-layer weights (alex.pth / vgg.pth)")
     s.add_argument("--lpips-net", default="alex", choices=["alex", "vgg"])
     s.add_argument("--set", action="append", metavar="KEY=VALUE", help="override any Stage I setting")
+    g = s.add_argument_group("Stage II (--stage 2 continues the run's Stage I; --stage all runs both)")
+    g.add_argument("--stage2-iters", type=int, default=None, help="Stage II steps (default 1500)")
+    g.add_argument("--stage2-minutes", type=float, default=None, help="Stage II wall-clock budget")
+    g.add_argument("--prior", default=None, choices=["builtin", "zero123"],
+                   help="guidance for unseen views: the built-in propagated-appearance prior, or Zero123 SDS")
+    g.add_argument("--prior-path", default=None, help="diffusers-format Zero123 / Stable Zero123 folder")
+    g.add_argument("--canonical-ratio", type=float, default=None, help="share of guidance steps in canonical space (0.5)")
+    g.add_argument("--given-ratio", type=float, default=None, help="share of steps that are given-view steps (0.5)")
+    g.add_argument("--lambda-sds", type=float, default=None, help="λ_SDS,0 (0.3)")
+    g.add_argument("--sds-t0", type=float, default=None, help="epoch from which λ_SDS halves (100)")
+    g.add_argument("--sds-k", type=float, default=None, help="epochs between halvings (100)")
+    g.add_argument("--epoch-steps", type=int, default=None, help="steps per schedule epoch (5)")
+    g.add_argument("--visibility-threshold", type=float, default=None, help="unseen when visible share <= this (0.5)")
+    g.add_argument("--lambda-p", type=float, default=None, help="λ_p, pose-feature regulariser (0.5)")
+    for flag in STAGE2_SWITCHES:
+        g.add_argument("--" + flag.replace("_", "-"), action="store_true", help="ablation: turn this part off")
+    g.add_argument("--set2", action="append", metavar="KEY=VALUE", help="override any Stage II setting")
+    g.add_argument("--allow-incomplete", action="store_true", help="start Stage II on an unfinished Stage I run")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_cmd_train)
 
@@ -198,11 +257,14 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument("--orbit", type=int, metavar="N", help="a full orbit of N frames around the avatar")
     what.add_argument("--poses", metavar="SCENE", help="one frame per pose of SCENE (folder or synthetic:...), "
                                                        "seen from its training camera")
+    what.add_argument("--novel", metavar="NAME", help="a novel pose sequence: walk (a walk cycle) or arms_up, "
+                                                      "seen from the video's first training camera")
     s.add_argument("--out", required=True, type=Path, help="output file (.mp4 or .gif)")
     s.add_argument("--size", type=int, default=512, help="frame size in pixels (longer side for --poses)")
     s.add_argument("--fps", type=float, default=None,
-                   help="frames per second (default 30 for --orbit, the scene's for --poses)")
+                   help="frames per second (default 30 for --orbit, the scene's for --poses and --novel)")
     s.add_argument("--frame", type=int, default=0, help="pose (frame index) the orbit shows")
+    s.add_argument("--frames", type=int, default=30, help="frames of a --novel sequence")
     s.add_argument("--mode", default="rgb", choices=["rgb", "normal", "depth", "alpha", "visibility"])
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_cmd_export)

@@ -35,40 +35,123 @@ class RunLock:
         self.path.unlink(missing_ok=True)
 
 
-def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True):
-    """Train until the run's steps or minutes are used up; returns the session."""
-    from app.run_setup import open_session
+def _run(session, desc: str, progress: bool) -> None:
+    """Steps until the session's stage is done, with a progress bar; saves on the way out."""
+    total = session.stage2.iters if getattr(session, "stage", 1) == 2 else session.config.iters
+    done = session.stage2_step if getattr(session, "stage", 1) == 2 else session.step_count
+    session.maybe_evaluate(force=done == 0)
+    bar = tqdm(total=total, initial=done, desc=desc, disable=not progress, unit="it")
+    try:
+        while not session.done:
+            out, _ = session.advance()
+            bar.update()
+            if session.step_count % 25 == 0 and not out.get("skipped"):
+                bar.set_postfix(loss=f"{out['loss']:.4f}",
+                                seen=f"{session.latest.get('seen_psnr', float('nan')):.1f}",
+                                unseen=f"{session.latest.get('unseen_psnr', float('nan')):.1f}")
+    finally:
+        bar.close()
+        session.save()
+    session.maybe_evaluate(force=True)
+    session.save()
+
+
+def _report(session, run_dir: Path) -> None:
     from reconstruct.train.report import error_vs_time_table, plot_error_vs_time
 
+    print(error_vs_time_table(session.log.read("eval")))
+    print(f"wrote {plot_error_vs_time(run_dir)}", file=sys.stderr)
+
+
+def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True, stage: str = "1", stage2=None,
+          allow_incomplete: bool = False):
+    """Train until the run's steps or minutes are used up; returns the session. ``stage``: "1",
+    "2" (continue the run's Stage I, or resume its Stage II) or "all"."""
+    from app.run_setup import open_session
+
+    if stage == "2":
+        return train_stage2(run_dir, stage2, allow_incomplete=allow_incomplete, progress=progress)
     run_dir.mkdir(parents=True, exist_ok=True)
     with RunLock(run_dir):
         session = open_session(scene_spec, run_dir, config, progress=progress)
-        config = session.config
-        if session.lpips_note:
-            print(session.lpips_note, file=sys.stderr)
-        if not session.use_normals:
-            print("normal loss left out: the scene has no normal maps", file=sys.stderr)
-        width, height = session.scene.image_size
-        print(f"{session.model.num_gaussians} Gaussians, images {width}x{height}, "
-              f"target {config.iters} steps" + (f" or {config.minutes:g} min" if config.minutes else ""), file=sys.stderr)
-        session.maybe_evaluate(force=session.step_count == 0)
-        bar = tqdm(total=config.iters, initial=session.step_count, desc="stage I", disable=not progress, unit="it")
-        try:
-            while not session.done:
-                out, _ = session.advance()
-                bar.update()
-                if session.step_count % 25 == 0 and not out.get("skipped"):
-                    bar.set_postfix(loss=f"{out['loss']:.4f}", psnr=f"{out['psnr_train']:.1f}",
-                                    seen=f"{session.latest.get('seen_psnr', float('nan')):.1f}",
-                                    unseen=f"{session.latest.get('unseen_psnr', float('nan')):.1f}")
-        finally:
-            bar.close()
-            session.save()
-        session.maybe_evaluate(force=True)
-        session.save()
-        records = session.log.read("eval")
-        print(error_vs_time_table(records))
-        print(f"wrote {plot_error_vs_time(run_dir)}", file=sys.stderr)
+        if getattr(session, "stage", 1) == 2:
+            if stage == "1":
+                raise RuntimeError(f"{run_dir}: this run is already in Stage II (use --stage 2 to continue it)")
+        else:
+            config = session.config
+            if session.lpips_note:
+                print(session.lpips_note, file=sys.stderr)
+            if not session.use_normals:
+                print("normal loss left out: the scene has no normal maps", file=sys.stderr)
+            width, height = session.scene.image_size
+            print(f"{session.model.num_gaussians} Gaussians, images {width}x{height}, "
+                  f"target {config.iters} steps" + (f" or {config.minutes:g} min" if config.minutes else ""),
+                  file=sys.stderr)
+            _run(session, "stage I", progress)
+        if stage == "all":
+            session = _enter_stage2(session, run_dir, stage2, allow_incomplete)
+            _run(session, "stage II", progress)
+        _report(session, run_dir)
+    return session
+
+
+def _enter_stage2(session, run_dir: Path, stage2, allow_incomplete: bool):
+    from reconstruct.stage2.config import Stage2Config
+    from reconstruct.stage2.session import start_stage2
+
+    if getattr(session, "stage", 1) == 2:
+        return session
+    session = start_stage2(session, stage2 or Stage2Config(), allow_incomplete=allow_incomplete)
+    _write_stage2_info(run_dir, session)
+    s2 = session.stage2
+    print(f"Stage II: prior {session.prior.describe()}; {session.latest.get('unseen_views', 0)} unseen of "
+          f"{len(session.selected_views)} candidate views (threshold {s2.visibility_threshold:g}); "
+          f"{s2.iters} steps" + (f" or {s2.minutes:g} min" if s2.minutes else ""), file=sys.stderr)
+    return session
+
+
+def _write_stage2_info(run_dir: Path, session) -> None:
+    info_path = run_dir / "run.json"
+    info = json.loads(info_path.read_text()) if info_path.exists() else {}
+    info.update({"stage": 2, "stage2": session.stage2.to_dict(), "stage1_step": session.stage1_step})
+    tmp = run_dir / ".run.json.tmp"
+    tmp.write_text(json.dumps(info, indent=1))
+    tmp.replace(info_path)
+
+
+def train_stage2(run_dir: Path, stage2_overrides: dict | None = None, *, allow_incomplete: bool = False,
+                 progress: bool = True):
+    """Continue a run with Stage II: from its finished Stage I checkpoint, or resume its Stage II.
+    ``stage2_overrides``: Stage II settings given on the command line (the rest from the checkpoint
+    when resuming, else the paper's defaults)."""
+    from app.run_setup import check_run
+    from reconstruct.data.load import load_scene
+    from reconstruct.stage2.config import Stage2Config
+    from reconstruct.stage2.session import Stage2Session
+    from reconstruct.train.checkpoint import load_checkpoint
+    from reconstruct.train.session import CHECKPOINT_NAME, TrainingSession
+
+    if isinstance(stage2_overrides, Stage2Config):
+        stage2_overrides = stage2_overrides.to_dict()
+    overrides = dict(stage2_overrides or {})
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"{run_dir}: no such run folder; train Stage I first (train --stage 1 --out {run_dir})")
+    info = check_run(run_dir, "continue with Stage II")
+    scene = load_scene(info["scene"], progress=progress)
+    with RunLock(run_dir):
+        state = load_checkpoint(run_dir / CHECKPOINT_NAME)
+        if state.get("stage", 1) == 2:
+            cfg2 = Stage2Config.from_dict({**state["stage2"]["config"], **overrides})
+            session = Stage2Session.resume(scene, run_dir, stage2=cfg2)
+            session.log.truncate_after(session.step_count)
+            print(f"resuming Stage II of {run_dir} at Stage II step {session.stage2_step}", file=sys.stderr)
+        else:
+            s1 = TrainingSession.resume(scene, run_dir)
+            s1.log.truncate_after(s1.step_count)
+            session = _enter_stage2(s1, run_dir, Stage2Config(**overrides), allow_incomplete)
+        _run(session, "stage II", progress)
+        _report(session, run_dir)
     return session
 
 

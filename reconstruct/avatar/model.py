@@ -24,6 +24,7 @@ from ..body.lbs import apply_normals, apply_points, blend
 from ..body.uv_map import UVMap, build_uv_map, texel_spacing
 from .config import AvatarConfig
 from .decoder import GaussianDecoder
+from .pose_encoder import PoseEncoder
 
 
 @dataclass
@@ -84,9 +85,30 @@ class AvatarModel(nn.Module):
         return out[0, :, 0].T
 
     def decoder_input(self, pose_features: torch.Tensor | None = None) -> torch.Tensor:
+        """[S, S, uv] (Stage I) or [S, P, uv] with P = S + ``pose_features`` (Stage II, Eq. 12)."""
         s = self.sample(self.features)
-        second = s if pose_features is None else self.sample(pose_features)
+        second = s if pose_features is None else self.sample(self.features + pose_features)
         return torch.cat([s, second, self.uv_grid], dim=1)
+
+    # ----- pose feature injection (Stage II) ------------------------------------------------
+    def enable_pose_injection(self, width: int = 16) -> PoseEncoder:
+        if self.pose_encoder is None:
+            self.pose_encoder = PoseEncoder(self.config.feature_channels, self.config.feature_resolution,
+                                            width).to(self.features.device)
+        return self.pose_encoder
+
+    def pose_map(self, articulation: torch.Tensor) -> torch.Tensor:
+        """(3,R,R) posed positional map (Eq. 13's P_uv) for bone transforms ``articulation`` of a pose
+        without its global rotation and translation: the displacement of each texel's surface point
+        from its canonical position (zero in the canonical pose)."""
+        M = self.lbs_matrices(articulation)
+        return self.uv_map.scatter(apply_points(M, self.base_positions) - self.base_positions)
+
+    def pose_features(self, articulation: torch.Tensor) -> torch.Tensor | None:
+        """E(P_uv), the pose-dependent part of P, or None without pose injection."""
+        if self.pose_encoder is None:
+            return None
+        return self.pose_encoder(self.pose_map(articulation)[None])
 
     def canonical(self, pose_features: torch.Tensor | None = None) -> CanonicalGaussians:
         out = self.decoder(self.decoder_input(pose_features))

@@ -43,13 +43,16 @@ class CandidateView:
     unseen: bool  # Eq. 10: visibility <= threshold
 
 
-def candidate_cameras(target, config: ViewSelectionConfig) -> list[tuple[Camera, float, float]]:
+def candidate_cameras(target, config: ViewSelectionConfig, azimuth_offset_deg: float = 0.0,
+                      ) -> list[tuple[Camera, float, float]]:
+    """(camera, azimuth, elevation) of every candidate. Azimuths are relative to
+    ``azimuth_offset_deg`` (the reference view's own azimuth: 0 = the reference view's side)."""
     kw = dict(width=config.size, height=config.size, fov_y_deg=config.fov_y_deg)
-    views = [(Camera.orbit(az, config.elevation_deg, config.distance, target, name=f"select_az{az:05.1f}", **kw),
-              az, config.elevation_deg)
+    views = [(Camera.orbit(az + azimuth_offset_deg, config.elevation_deg, config.distance, target,
+                           name=f"select_az{az:05.1f}", **kw), az, config.elevation_deg)
              for az in np.linspace(0.0, 360.0, config.num_azimuths, endpoint=False)]
-    views.append((Camera.orbit(0.0, config.overhead_elevation_deg, config.distance, target, name="select_overhead", **kw),
-                  0.0, config.overhead_elevation_deg))
+    views.append((Camera.orbit(azimuth_offset_deg, config.overhead_elevation_deg, config.distance, target,
+                               name="select_overhead", **kw), 0.0, config.overhead_elevation_deg))
     return views
 
 
@@ -66,11 +69,23 @@ def visibility_ratio(means, quats, scales, opacities, seen: torch.Tensor, camera
 
 @torch.no_grad()
 def select_views(means, quats, scales, opacities, seen: torch.Tensor, target,
-                 config: ViewSelectionConfig = ViewSelectionConfig()) -> list[CandidateView]:
+                 config: ViewSelectionConfig = ViewSelectionConfig(), azimuth_offset_deg: float = 0.0,
+                 ) -> list[CandidateView]:
     """All candidate views with their visibility; ``[v for v in result if v.unseen]`` are the views
     Stage II refines."""
     views = []
-    for cam, az, el in candidate_cameras(target, config):
+    for cam, az, el in candidate_cameras(target, config, azimuth_offset_deg):
         ratio, _ = visibility_ratio(means, quats, scales, opacities, seen, cam)
         views.append(CandidateView(cam, float(az), float(el), ratio, ratio <= config.threshold))
     return views
+
+
+def azimuth_of(camera: Camera, target) -> float:
+    """The azimuth (degrees, ``orbit_position``'s convention) of a camera's centre around ``target``."""
+    d = camera.center - np.asarray(target, np.float64)
+    return float(np.degrees(np.arctan2(d[0], -d[1])))
+
+
+def elevation_of(camera: Camera, target) -> float:
+    d = camera.center - np.asarray(target, np.float64)
+    return float(np.degrees(np.arctan2(d[2], np.hypot(d[0], d[1]))))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..avatar.model import AvatarModel, CanonicalGaussians
+from ..avatar.model import AvatarModel
 from ..data.scene import Scene
 from ..metrics import psnr, ssim
 from .render import render_avatar
@@ -23,13 +23,16 @@ def summarize(rows: list[dict]) -> dict:
 
 
 @torch.no_grad()
-def evaluate_views(model: AvatarModel, canon: CanonicalGaussians, scene: Scene, transforms_of, background: torch.Tensor,
+def evaluate_views(model: AvatarModel, canon, scene: Scene, transforms_of, background: torch.Tensor,
                    *, lpips=None, views=None) -> tuple[list[dict], dict]:
-    """``transforms_of(frame_index)`` gives the (J,4,4) bone transforms of a frame's pose."""
+    """``transforms_of(frame_index)`` gives the (J,4,4) bone transforms of a frame's pose; ``canon``
+    is the CanonicalGaussians, or a function of the frame index giving them (pose-dependent
+    Gaussians of Stage II)."""
     rows = []
     device = background.device
+    canon_of = canon if callable(canon) else (lambda _i: canon)
     for v in (scene.eval_views if views is None else views):
-        posed = model.pose(canon, transforms_of(v.frame_index))
+        posed = model.pose(canon_of(v.frame_index), transforms_of(v.frame_index))
         r = render_avatar(posed, v.camera, background, normals=False)
         gt = torch.as_tensor(v.image, device=device) + (1 - torch.as_tensor(v.mask, device=device)[..., None]) * background
         pred = r.rgb.clamp(0, 1)

@@ -31,6 +31,9 @@ GOOD_STATE_EVERY = 100  # steps between in-memory copies of the last good state
 
 
 class TrainingSession:
+    stage = 1
+    marks_seen = True  # Stage I marks first-hit Gaussians as seen (Eq. 7); Stage II keeps the flags
+
     def __init__(self, scene: Scene, config: Stage1Config | None = None, run_dir: str | Path | None = None,
                  *, scene_spec: str | None = None) -> None:
         self.scene = scene
@@ -141,7 +144,7 @@ class TrainingSession:
         i = self._next_frame()
         tgt = self._targets[i]
         refine = self.pose_optimizer is not None and self.progress >= cfg.pose_refinement_start
-        canon = self.model.canonical()
+        canon, extra = self._canonical_for_step(i)
         transforms = self.frame_transforms(i, refined=refine)
         posed = self.model.pose(canon, transforms)
         r = render_avatar(posed, tgt["camera"], self.background, normals=self.use_normals, first_hit=True,
@@ -161,17 +164,30 @@ class TrainingSession:
         if self.lpips is not None:
             terms["lpips"] = self.lpips(r.rgb[None].clamp(0, 1), tgt["image"][None]).mean()
             weights["lpips"] = cfg.lambda_lpips
+        for k, (term, w) in extra.items():
+            terms[k], weights[k] = term, w
         loss = sum(weights[k] * v for k, v in terms.items())
         optimizers = [self.optimizer] + ([self.pose_optimizer] if refine else [])
         if not self._guarded_update(loss, optimizers):
             return self._skipped_step(i, t0, terms)
-        self._mark_seen(r.first_hit, posed, tgt["camera"])
+        if self.marks_seen:
+            self._mark_seen(r.first_hit, posed, tgt["camera"])
         self.step_count += 1
         self.elapsed += time.perf_counter() - t0
         out = {"loss": float(loss.detach()), **{k: float(v.detach()) for k, v in terms.items()}, "frame": i,
                "psnr_train": float(-10 * torch.log10(terms["rgb"].detach().clamp_min(1e-12)))}
         self.latest.update(out)
         return out
+
+    def _canonical_for_step(self, frame_index: int):
+        """The canonical Gaussians a step on ``frame_index`` renders, and extra loss terms
+        {name: (value, weight)}. Stage I: G([S, S]), nothing extra."""
+        return self.model.canonical(), {}
+
+    def canonical_at(self, frame_index: int | None = None):
+        """Canonical Gaussians for a frame's pose (``None``: the canonical pose), without gradients
+        needed. Stage I's do not depend on the pose."""
+        return self.model.canonical()
 
     # ----- guards against non-finite numbers -------------------------------------------------
     def _trainable(self) -> list[torch.Tensor]:
@@ -247,8 +263,7 @@ class TrainingSession:
     def evaluate(self, views=None) -> tuple[list[dict], dict]:
         t0 = time.perf_counter()
         with torch.no_grad():
-            canon = self.model.canonical()
-            rows, summary = evaluate_views(self.model, canon, self.scene, self.frame_transforms, self.background,
+            rows, summary = evaluate_views(self.model, self.canonical_at, self.scene, self.frame_transforms, self.background,
                                            lpips=self.lpips, views=views)
         self.elapsed += time.perf_counter() - t0
         self.latest.update({k: v for k, v in summary.items() if v is not None})
@@ -261,7 +276,7 @@ class TrainingSession:
             return None
         rows, summary = self.evaluate()
         self._last_eval = self.elapsed
-        record = {"kind": "eval", "step": self.step_count, "elapsed": round(self.elapsed, 3), "stage": 1, **summary,
+        record = {"kind": "eval", "step": self.step_count, "elapsed": round(self.elapsed, 3), "stage": self.stage, **summary,
                   "views": rows}
         if self.log:
             self.log.append(record)
@@ -279,15 +294,16 @@ class TrainingSession:
 
     def log_step(self, out: dict) -> None:
         if self.log:
-            self.log.append({"kind": "train", "step": self.step_count, "elapsed": round(self.elapsed, 3), "stage": 1,
+            self.log.append({"kind": "train", "step": self.step_count, "elapsed": round(self.elapsed, 3), "stage": self.stage,
                              **{k: (round(v, 6) if isinstance(v, float) else v) for k, v in out.items()}})
 
     @torch.no_grad()
     def make_snapshot(self, space: str = "observation", frame_index: int = 0) -> Snapshot:
-        canon = self.model.canonical()
         if space == "canonical":
+            canon = self.canonical_at(None)
             means, normals = canon.means, canon.normals
         elif space == "observation":
+            canon = self.canonical_at(frame_index)
             posed = self.model.pose(canon, self.frame_transforms(frame_index))
             means, normals = posed.means, posed.normals
         else:
@@ -297,7 +313,7 @@ class TrainingSession:
         rot = np.zeros((n, 4), np.float32)
         rot[:, 0] = 1
         return Snapshot(f32(means), f32(canon.scales), rot, f32(canon.colors), np.ones(n, np.float32), f32(normals),
-                        self.seen.numpy().astype(np.uint8), space=space, frame_index=frame_index, stage=1,
+                        self.seen.numpy().astype(np.uint8), space=space, frame_index=frame_index, stage=self.stage,
                         step=self.step_count, metrics={k: v for k, v in self.latest.items() if isinstance(v, (int, float))})
 
     def publish(self, space: str = "observation", frame_index: int = 0) -> None:
@@ -306,7 +322,7 @@ class TrainingSession:
     # ----- checkpoints --------------------------------------------------------------------
     def state(self) -> dict:
         return {
-            "stage": 1,
+            "stage": self.stage,
             "step": self.step_count,
             "elapsed": self.elapsed,
             "config": self.config.to_dict(),
@@ -368,6 +384,10 @@ class TrainingSession:
     def resume(cls, scene: Scene, run_dir: str | Path, config: Stage1Config | None = None) -> "TrainingSession":
         run_dir = Path(run_dir)
         state = load_checkpoint(run_dir / CHECKPOINT_NAME)
+        if state.get("stage", 1) == 2 and cls.stage == 1:
+            from ..stage2.session import Stage2Session
+
+            return Stage2Session.resume(scene, run_dir, config)
         cfg = config or Stage1Config.from_dict(state["config"])
         session = cls(scene, cfg, run_dir, scene_spec=state.get("scene_spec"))
         session.load_state(state, str(run_dir / CHECKPOINT_NAME))

@@ -1,0 +1,153 @@
+"""Stage II session: takeover of a Stage I session, pose injection starting from Stage I's output,
+dual-space guidance steps, schedule, checkpoints and errors."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+
+@pytest.fixture
+def stage1(tiny_scene, tiny_config, tmp_path):
+    from reconstruct.train.session import TrainingSession
+
+    s = TrainingSession(tiny_scene, tiny_config, tmp_path / "run")
+    for _ in range(tiny_config.iters):
+        s.step()
+    return s
+
+
+def _cfg(**kw):
+    from reconstruct.stage2.config import Stage2Config
+
+    base = dict(iters=12, num_azimuths=12, prior_size=48)
+    base.update(kw)
+    return Stage2Config(**base)
+
+
+def test_pose_injection_starts_where_stage1_ended(stage1):
+    """P = S + E(P_uv) with E's last layer at zero: the first Stage II Gaussians are Stage I's."""
+    from reconstruct.stage2.session import Stage2Session
+
+    with torch.no_grad():
+        before = stage1.model.canonical()
+    s2 = Stage2Session.from_stage1(stage1, _cfg())
+    with torch.no_grad():
+        for frame in (None, 0, 3):
+            after = s2.canonical_at(frame)
+            assert torch.allclose(after.colors, before.colors, atol=1e-6)
+            assert torch.allclose(after.means, before.means, atol=1e-6)
+    # the pose map is zero in the canonical pose and not for a video frame
+    assert float(s2.model.pose_map(s2.articulation(None)).abs().max()) < 1e-5
+    assert float(s2.model.pose_map(s2.articulation(1)).abs().max()) > 1e-2
+
+
+def test_stage2_steps_change_unseen_colours_towards_propagation(stage1):
+    from reconstruct.stage2.session import Stage2Session
+
+    s2 = Stage2Session.from_stage1(stage1, _cfg(given_view_ratio=0.0, iters=20, lambda_sds=1.0, progressive=False))
+    assert s2.spaces and s2.spaces[0].frame is None
+    unseen = ~s2.trusted_seen
+    assert unseen.any()
+    # a pseudo-target far from the avatar's colours: unseen Gaussians must move towards it
+    s2.pseudo_colors[unseen] = torch.tensor([1.0, 0.0, 0.0])
+    with torch.no_grad():
+        err0 = float((s2.canonical_at(None).colors - s2.pseudo_colors)[unseen].abs().mean())
+    kinds = set()
+    while not s2.done:
+        out = s2.step()
+        assert not out.get("skipped")
+        assert math.isfinite(out["loss"])
+        kinds.add(out["kind"])
+    assert kinds == {"canonical", "observation"}
+    with torch.no_grad():
+        err1 = float((s2.canonical_at(None).colors - s2.pseudo_colors)[unseen].abs().mean())
+    assert err1 < err0 * 0.9, (err0, err1)
+    assert s2.stage2_step == 20 and s2.step_count == stage1.step_count + 20
+
+
+def test_ratios_and_ablation_switches(stage1):
+    from reconstruct.stage2.session import Stage2Session
+
+    s2 = Stage2Session.from_stage1(stage1, _cfg(given_view_ratio=0.5, canonical_ratio=1.0, iters=40))
+    kinds = [s2._next_kind() for _ in range(400)]
+    assert "observation" not in kinds
+    assert abs(kinds.count("given") / 400 - 0.5) < 0.1
+    s2.stage2 = _cfg(canonical_sds=False)
+    assert "canonical" not in {s2._next_kind() for _ in range(100)}
+    s2.stage2 = _cfg(canonical_sds=False, observation_sds=False)
+    assert {s2._next_kind() for _ in range(50)} == {"given"}
+
+
+def test_schedule_halves_lambda_sds():
+    c = _cfg(lambda_sds=0.3, sds_t0=100, sds_k=100, epoch_steps=5)  # Eq. 14: halved from epoch t0 + k
+    assert c.sds_weight(0) == 0.3 and c.sds_weight(999) == 0.3
+    assert c.sds_weight(1000) == pytest.approx(0.15) and c.sds_weight(1500) == pytest.approx(0.075)
+    assert _cfg(progressive=False).sds_weight(10 ** 6) == 0.3
+
+
+def test_checkpoint_roundtrip_resumes_stage2(stage1, tmp_path):
+    from reconstruct.stage2.session import STAGE1_CHECKPOINT_NAME, Stage2Session
+    from reconstruct.train.session import TrainingSession
+
+    s2 = Stage2Session.from_stage1(stage1, _cfg())
+    assert (stage1.run_dir / STAGE1_CHECKPOINT_NAME).exists()
+    for _ in range(4):
+        s2.step()
+    s2.save()
+    back = TrainingSession.resume(stage1.scene, stage1.run_dir)
+    assert isinstance(back, Stage2Session) and back.stage == 2
+    assert back.stage2_step == 4 and back.step_count == s2.step_count
+    assert [len(s.views) for s in back.spaces] == [len(s.views) for s in s2.spaces]
+    assert [v.unseen for v in back.selected_views] == [v.unseen for v in s2.selected_views]
+    with torch.no_grad():
+        assert torch.allclose(back.canonical_at(2).colors, s2.canonical_at(2).colors)
+    a, b = s2.step(), back.step()  # same RNG state: the same next step
+    assert a["kind"] == b["kind"] and a["loss"] == pytest.approx(b["loss"], rel=1e-5)
+
+
+def test_every_view_seen_skips_guidance(stage1):
+    from reconstruct.stage2.session import Stage2Session
+
+    stage1.seen[:] = True
+    s2 = Stage2Session.from_stage1(stage1, _cfg())
+    assert s2.sds_note and "already seen" in s2.sds_note
+    assert {s2.step()["kind"] for _ in range(5)} == {"given"}
+
+
+def test_incomplete_stage1_is_refused(tiny_scene, tiny_config):
+    from reconstruct.stage2.session import Stage2Error, start_stage2
+    from reconstruct.train.session import TrainingSession
+
+    s = TrainingSession(tiny_scene, tiny_config)
+    s.step()
+    with pytest.raises(Stage2Error, match="incomplete"):
+        start_stage2(s, _cfg())
+
+
+def test_config_errors():
+    from reconstruct.stage2.config import Stage2Config
+
+    with pytest.raises(ValueError, match=r"threshold must be in \(0, 1\)"):
+        Stage2Config(visibility_threshold=1.0)
+    with pytest.raises(ValueError, match="prior-path"):
+        Stage2Config(prior="zero123")
+    with pytest.raises(ValueError, match="unknown prior"):
+        Stage2Config(prior="dreams")
+
+
+def test_framed_camera_crops_to_points():
+    from reconstruct.camera import Camera
+    from reconstruct.stage2.session import framed_camera
+
+    cam = Camera.orbit(30.0, 0.0, 5.0, (0, 0, 1), width=128, height=128, fov_y_deg=30.0)
+    pts = torch.as_tensor(np.random.default_rng(0).uniform(-0.4, 0.4, (200, 3)) + [0, 0, 1])
+    f = framed_camera(cam, pts, 64, margin=0.1)
+    xc = pts.numpy() @ f.R.T + f.t
+    u = f.K[0, 0] * xc[:, 0] / xc[:, 2] + f.K[0, 2]
+    v = f.K[1, 1] * xc[:, 1] / xc[:, 2] + f.K[1, 2]
+    assert u.min() > 0 and v.min() > 0 and u.max() < 64 and v.max() < 64
+    assert max(u.max() - u.min(), v.max() - v.min()) > 64 * 0.75  # the points fill the crop
