@@ -62,8 +62,19 @@ def load_synthetic(config: SyntheticConfig, *, use_cache: bool = True, progress:
 
 
 def load_scene(spec: str | Path, *, use_cache: bool = True, progress: bool = True) -> Scene:
-    """A scene from a folder path or a ``synthetic:...`` spec. Unknown layouts raise SceneFormatError."""
+    """A scene from a ``synthetic:...`` spec, a scene folder, a dataset spec (``zju:PATH,frames=0:300:5``,
+    see reconstruct.data.loaders) or a dataset folder (layout detected). Unknown layouts raise
+    SceneFormatError (naming what each layout needs)."""
+    from .loaders import is_loader_spec, load_dataset
+
     text = str(spec)
     if text.startswith(SYNTHETIC_PREFIX):
         return load_synthetic(parse_synthetic_spec(text), use_cache=use_cache, progress=progress)
-    return read_scene(Path(text))
+    if is_loader_spec(text):
+        return load_dataset(text)
+    path = Path(text)
+    if not path.is_dir() and "," in text and Path(text.split(",", 1)[0]).is_dir():
+        return load_dataset(text)  # a bare dataset folder with options
+    if (path / "scene.json").is_file() or not path.is_dir():
+        return read_scene(path)
+    return load_dataset(text)

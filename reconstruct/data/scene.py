@@ -42,7 +42,11 @@ def _build_body(spec: BodySpec) -> BodyModel:
         params = dict(spec.params)
         spread = float(params.pop("leg_spread_deg", 5.0))
         return AnnyBody(params, leg_spread_deg=spread)
-    raise ValueError(f"unknown body model {spec.model!r}; available: 'anny'")
+    if spec.model == "smpl":
+        from ..body.smpl_backend import build_smpl_body
+
+        return build_smpl_body(dict(spec.params))
+    raise ValueError(f"unknown body model {spec.model!r}; available: 'anny', 'smpl'")
 
 
 @dataclass
