@@ -41,7 +41,8 @@ def _cmd_contact_sheet(args) -> int:
 def _cmd_demo(args) -> int:
     from app.demo import run_demo
 
-    return run_demo(args.scene, Path(args.out), minutes=args.minutes, threads=args.threads)
+    return run_demo(args.scene, Path(args.out), minutes=args.minutes, stage2_minutes=args.stage2_minutes,
+                    threads=args.threads)
 
 
 def _stage1_config(args):
@@ -236,7 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--lambda-sds", type=float, default=None, help="λ_SDS,0 (0.3)")
     g.add_argument("--sds-t0", type=float, default=None, help="epoch from which λ_SDS halves (100)")
     g.add_argument("--sds-k", type=float, default=None, help="epochs between halvings (100)")
-    g.add_argument("--epoch-steps", type=int, default=None, help="steps per schedule epoch (5)")
+    g.add_argument("--epoch-steps", type=float, default=None, help="steps per schedule epoch (2)")
     g.add_argument("--visibility-threshold", type=float, default=None, help="unseen when visible share <= this (0.5)")
     g.add_argument("--lambda-p", type=float, default=None, help="λ_p, pose-feature regulariser (0.5)")
     for flag in STAGE2_SWITCHES:
@@ -273,8 +274,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scene", default=DEFAULT_SCENE)
     s.add_argument("--out", default="runs/demo", type=Path)
     s.add_argument("--minutes", type=float, default=3.0, help="Stage I training time")
+    s.add_argument("--stage2-minutes", type=float, default=2.0, help="Stage II training time (0: Stage I only)")
     s.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
     s.set_defaults(func=_cmd_demo)
+
+    from app.prepare_cmd import add_prepare_parser
+
+    add_prepare_parser(sub)
     return p
 
 

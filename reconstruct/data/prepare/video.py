@@ -1,0 +1,81 @@
+"""Read a video file (mp4, mov, anything ffmpeg decodes) into RGB frames, resized to a working size."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm")
+
+
+class VideoError(ValueError):
+    """A video that cannot be used: names the file and what was expected."""
+
+
+@dataclass
+class Video:
+    frames: np.ndarray  # (T,H,W,3) uint8 RGB at the working size
+    fps: float
+    source_size: tuple[int, int]  # (width, height) as stored in the file
+    indices: np.ndarray  # (T,) frame numbers in the file
+
+
+def _resize(frame: np.ndarray, width: int, height: int) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(frame).resize((width, height), Image.Resampling.LANCZOS))
+
+
+def working_size(width: int, height: int, max_size: int | None) -> tuple[int, int]:
+    if not max_size or max(width, height) <= max_size:
+        return width, height
+    s = max_size / max(width, height)
+    return max(2, round(width * s)), max(2, round(height * s))
+
+
+def probe_video(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of the first frame; raises like ``read_video`` without decoding the whole file."""
+    v = read_video(path, max_size=None, max_frames=1)
+    return v.source_size
+
+
+def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: int = 1,
+               max_frames: int | None = None) -> Video:
+    """Frames of ``path`` (every ``every``-th, at most ``max_frames``), longer side at most ``max_size``.
+    Raises FileNotFoundError for a missing file and VideoError for one that is not a decodable video."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such video file")
+    if path.is_dir():
+        raise VideoError(f"{path}: is a folder; expected a video file ({', '.join(VIDEO_SUFFIXES)})")
+    if every < 1:
+        raise ValueError(f"every must be at least 1, found {every}")
+    import imageio.v3 as iio
+
+    expected = f"expected a video file that ffmpeg can decode ({', '.join(VIDEO_SUFFIXES)})"
+    frames, indices = [], []
+    fps = 0.0
+    try:
+        meta = iio.immeta(path, plugin="pyav")
+        fps = float(meta.get("fps") or 0.0)
+        for i, frame in enumerate(iio.imiter(path, plugin="pyav", format="rgb24")):
+            if i % every:
+                continue
+            frames.append(frame)
+            indices.append(i)
+            if max_frames and len(frames) >= max_frames:
+                break
+    except Exception as exc:  # noqa: BLE001 - av/imageio raise many kinds for broken input
+        raise VideoError(f"{path}: cannot be read as a video ({expected}): {type(exc).__name__}: {exc}") from exc
+    if not frames:
+        raise VideoError(f"{path}: holds no video frames ({expected})")
+    h, w = frames[0].shape[:2]
+    ww, wh = working_size(w, h, max_size)
+    if (ww, wh) != (w, h):
+        frames = [_resize(f, ww, wh) for f in frames]
+    if not np.isfinite(fps) or fps <= 0:
+        fps = 25.0
+    return Video(np.stack(frames).astype(np.uint8), fps / every, (w, h), np.asarray(indices))
