@@ -101,7 +101,9 @@ def _enter_stage2(session, run_dir: Path, stage2, allow_incomplete: bool):
 
     if getattr(session, "stage", 1) == 2:
         return session
-    session = start_stage2(session, stage2 or Stage2Config(), allow_incomplete=allow_incomplete)
+    if isinstance(stage2, dict) or stage2 is None:
+        stage2 = Stage2Config(**(stage2 or {}))
+    session = start_stage2(session, stage2, allow_incomplete=allow_incomplete)
     _write_stage2_info(run_dir, session)
     s2 = session.stage2
     print(f"Stage II: prior {session.prior.describe()}; {session.latest.get('unseen_views', 0)} unseen of "

@@ -43,5 +43,5 @@ def build_prior(kind: str, path: str | None = None, **kwargs) -> GuidancePrior:
         except ImportError as exc:
             raise PriorError(f"the zero123 prior needs the optional packages diffusers and transformers "
                              f"(pip install 'wonderhuman-studio[zero123]'): {exc}") from exc
-        return Zero123Prior.from_pretrained(path, **kwargs)
+        return Zero123Prior(path, **kwargs)
     raise PriorError(f"unknown prior {kind!r}; choose builtin or zero123")

@@ -36,7 +36,7 @@ class Stage2Config:
     progressive: bool = True
     sds_t0: float = 100.0
     sds_k: float = 100.0
-    epoch_steps: int = 2
+    epoch_steps: float = 2.0
     # pose feature injection (Eq. 12-13)
     pose_injection: bool = True
     pose_encoder_width: int = 16  # channels of the UNet's first level (doubling per level)
@@ -78,8 +78,8 @@ class Stage2Config:
             raise ValueError(f"SDS halving interval k must be positive, found {self.sds_k}")
         if self.seen_erosion < 0:
             raise ValueError(f"seen_erosion must be >= 0, found {self.seen_erosion}")
-        if self.epoch_steps < 1:
-            raise ValueError(f"epoch_steps must be at least 1, found {self.epoch_steps}")
+        if not self.epoch_steps > 0:
+            raise ValueError(f"epoch_steps must be positive, found {self.epoch_steps}")
         if self.prior not in PRIORS:
             raise ValueError(f"unknown prior {self.prior!r}; choose one of {', '.join(PRIORS)}")
         if self.prior == "zero123" and not self.prior_path:

@@ -110,7 +110,8 @@ class Stage2Session(TrainingSession):
                  scene_spec: str | None = None) -> None:
         super().__init__(scene, config, run_dir, scene_spec=scene_spec)
         self.stage2 = stage2 = stage2 or Stage2Config()
-        self.prior = build_prior(stage2.prior, stage2.prior_path)
+        extra = {"guidance_scale": stage2.guidance_scale, "seed": config.seed} if stage2.prior == "zero123" else {}
+        self.prior = build_prior(stage2.prior, stage2.prior_path, **extra)
         if stage2.pose_injection:
             self.model.enable_pose_injection(stage2.pose_encoder_width)
         self._build_optimizer()

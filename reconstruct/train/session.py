@@ -189,6 +189,10 @@ class TrainingSession:
         needed. Stage I's do not depend on the pose."""
         return self.model.canonical()
 
+    def canonical_for_pose(self, pose: BodyPose):
+        """Canonical Gaussians for any pose (novel-pose animation); Stage I's do not depend on it."""
+        return self.model.canonical()
+
     # ----- guards against non-finite numbers -------------------------------------------------
     def _trainable(self) -> list[torch.Tensor]:
         return [p for g in self.optimizer.param_groups for p in g["params"]] + [self.pose_delta]
