@@ -2,4 +2,8 @@
 
 from .base import CameraDelta, GuidanceInput, GuidanceOutput, GuidancePrior, PriorError
 
-__all__ = ["CameraDelta", "GuidanceInput", "GuidanceOutput", "GuidancePrior", "PriorError"]
+from .propagated import PropagatedAppearancePrior, build_prior
+
+__all__ = ["CameraDelta", "GuidanceInput", "GuidanceOutput", "GuidancePrior", "PriorError",
+           "PropagatedAppearancePrior", "build_prior"]
+# Zero123Prior (reconstruct.priors.zero123) needs the optional diffusers/transformers: import it from there.

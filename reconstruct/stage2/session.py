@@ -112,6 +112,9 @@ class Stage2Session(TrainingSession):
         self.stage2 = stage2 = stage2 or Stage2Config()
         extra = {"guidance_scale": stage2.guidance_scale, "seed": config.seed} if stage2.prior == "zero123" else {}
         self.prior = build_prior(stage2.prior, stage2.prior_path, **extra)
+        # Zero123 was trained on objects over white: its renders and references are composited on white
+        self.guidance_background = (torch.ones(3, device=self.device) if stage2.prior == "zero123"
+                                    else self.background)
         if stage2.pose_injection:
             self.model.enable_pose_injection(stage2.pose_encoder_width)
         self._build_optimizer()
@@ -263,7 +266,7 @@ class Stage2Session(TrainingSession):
         target = g.means.mean(0).double().cpu().numpy()
         front = Camera.orbit(0.0, 0.0, self._view_config().distance, target, width=512, height=512, fov_y_deg=30.0)
         cam = framed_camera(front, g.means, self.stage2.prior_size)
-        self.canonical_reference = render_avatar(g, cam, self.background, normals=False).rgb.clamp(0, 1)
+        self.canonical_reference = render_avatar(g, cam, self.guidance_background, normals=False).rgb.clamp(0, 1)
         self.pseudo_colors = propagate_colors(self.model.base_positions, self.model.parts(), self.seen, canon.colors,
                                               self.model.uv_map.texel_rc, self.model.uv_map.resolution,
                                               pcfg).to(self.device)
@@ -277,7 +280,7 @@ class Stage2Session(TrainingSession):
         if frame not in self._references:
             f = self.scene.frames[frame]
             self._references[frame] = _square_crop(f.image, f.mask, self.stage2.prior_size,
-                                                   self.config.background).to(self.device)
+                                                   self.guidance_background.cpu().numpy()).to(self.device)
         return self._references[frame]
 
     # ----- schedule ----------------------------------------------------------------------------
@@ -349,7 +352,7 @@ class Stage2Session(TrainingSession):
             from ..body.lbs import apply_normals
             body_normals = apply_normals(M, self.model.base_normals)
         camera = framed_camera(view.camera, posed.means, s2.prior_size)
-        r = render_avatar(posed, camera, self.background, normals=s2.unseen_normals)
+        r = render_avatar(posed, camera, self.guidance_background, normals=s2.unseen_normals)
         render = r.rgb
         clip = s2.sds_grad_clip
         if render.requires_grad and clip > 0:
@@ -359,7 +362,7 @@ class Stage2Session(TrainingSession):
         def pseudo_target() -> torch.Tensor:
             g = dataclasses.replace(posed, means=posed.means.detach(), scales=posed.scales.detach(),
                                     colors=self.pseudo_colors)
-            return render_avatar(g, camera, self.background, normals=False).rgb
+            return render_avatar(g, camera, self.guidance_background, normals=False).rgb
 
         delta = CameraDelta(polar=-math.radians(view.elevation_deg - sv.reference_elevation),
                             azimuth=math.radians(view.azimuth_deg), radius=0.0,
