@@ -121,6 +121,7 @@ def _stage2_overrides(args) -> dict:
             raise ValueError(f"--set2: unknown Stage II setting {key!r}; known: {sorted(fields)}")
         default = getattr(Stage2Config(), key)
         out[key] = (value.lower() in ("1", "true", "yes") if isinstance(default, bool)
+                    else tuple(float(v) for v in value.split(",")) if isinstance(default, tuple)
                     else type(default)(value) if default is not None else value)
     Stage2Config(**out)  # fail early on bad values
     return out

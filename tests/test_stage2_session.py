@@ -48,7 +48,8 @@ def test_pose_injection_starts_where_stage1_ended(stage1):
 def test_stage2_steps_change_unseen_colours_towards_propagation(stage1):
     from reconstruct.stage2.session import Stage2Session
 
-    s2 = Stage2Session.from_stage1(stage1, _cfg(given_view_ratio=0.0, iters=20, lambda_sds=1.0, progressive=False))
+    s2 = Stage2Session.from_stage1(stage1, _cfg(given_view_ratio=0.0, iters=20, lambda_sds=1.0, progressive=False,
+                                                lr_decoder=3e-3, lr_features=1e-3, lr_milestones=()))
     assert s2.spaces and s2.spaces[0].frame is None
     unseen = ~s2.trusted_seen
     assert unseen.any()

@@ -57,9 +57,11 @@ class Stage2Config:
     guidance_scale: float = 3.0  # classifier-free guidance (zero123)
     sds_grad_clip: float = 1.0  # max gradient norm on the SDS-weighted render gradient
     # optimiser
-    lr_decoder: float = 1e-3
-    lr_features: float = 2e-4
-    lr_pose_encoder: float = 1e-3
+    lr_decoder: float = 3e-4
+    lr_features: float = 5e-5
+    lr_pose_encoder: float = 3e-4
+    lr_milestones: tuple[float, ...] = (2 / 3,)  # x lr_gamma after these fractions of Stage II
+    lr_gamma: float = 0.1
     # bookkeeping
     seed: int = 0
 
@@ -104,4 +106,7 @@ class Stage2Config:
         unknown = set(d) - known
         if unknown:
             raise ValueError(f"unknown Stage II settings {sorted(unknown)}")
+        d = dict(d)
+        if "lr_milestones" in d:
+            d["lr_milestones"] = tuple(d["lr_milestones"])
         return cls(**d)

@@ -292,7 +292,11 @@ class Stage2Session(TrainingSession):
         return min(p, 1.0)
 
     def _apply_schedule(self) -> None:
-        pass  # constant learning rates in Stage II
+        from ..train.schedule import step_decay
+
+        mult = step_decay(self.progress, tuple(self.stage2.lr_milestones), self.stage2.lr_gamma)
+        for g, base in zip(self.optimizer.param_groups, self.base_lrs):
+            g["lr"] = base * mult
 
     def sds_weight(self) -> float:
         return self.stage2.sds_weight(self.stage2_step)
@@ -314,6 +318,7 @@ class Stage2Session(TrainingSession):
     def step(self) -> dict:
         t0 = time.perf_counter()
         kind = self._next_kind()
+        self._apply_schedule()
         if kind == "given":
             out = super().step()
         else:
@@ -417,6 +422,8 @@ class Stage2Session(TrainingSession):
 
     def load_state(self, state: dict, source: str = "checkpoint") -> None:
         super().load_state(state, source)
+        self.base_lrs = [self.stage2.lr_decoder, self.stage2.lr_features] + (
+            [self.stage2.lr_pose_encoder] if self.model.pose_encoder is not None else [])
         st2 = state.get("stage2")
         if not st2:
             raise CheckpointError(f"{source}: not a Stage II checkpoint")
