@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
-from reconstruct.atomic import atomic_output
 
+from reconstruct.atomic import atomic_output
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 IMAGE_SUFFIXES = (".png",)
@@ -103,7 +104,8 @@ def _snapshot_at_pose(session, pose, frame_index: int = 0):
     from reconstruct.snapshot import Snapshot
 
     with torch.no_grad():
-        canon = session.model.canonical()
+        # Stage II decodes the canonical Gaussians from the pose's features; Stage I ignores the pose
+        canon = session.canonical_for_pose(pose) if hasattr(session, "canonical_for_pose") else session.model.canonical()
         transforms = session.body.bone_transforms(pose).float().to(canon.means.device)
         posed = session.model.pose(canon, transforms)
         f32 = lambda t: t.detach().cpu().float().numpy()
@@ -112,7 +114,8 @@ def _snapshot_at_pose(session, pose, frame_index: int = 0):
         rot[:, 0] = 1
         return Snapshot(f32(posed.means), f32(canon.scales), rot, f32(canon.colors), np.ones(n, np.float32),
                         f32(posed.normals), session.seen.numpy().astype(np.uint8), space="observation",
-                        frame_index=frame_index, stage=1, step=session.step_count)
+                        frame_index=frame_index, stage=int(getattr(session, "stage", 1) or 1),
+                        step=session.step_count)
 
 
 def orbit_cameras(snap, frames: int, width: int, height: int, elevation: float = 5.0, fill: float = 0.8,
@@ -200,38 +203,49 @@ def _check_mode(mode):
     return RenderMode.parse(mode)
 
 
-# ----------------------------------------------------------------------------- public API
-def export_orbit(session, out_path, *, frames: int = 60, size: int = 512, fps: float = 30, frame_index: int = 0,
-                 elevation: float = 5.0, mode="rgb", background=(0, 0, 0), progress: bool = True) -> Path:
-    """A full 360° orbit (``frames`` views) around the avatar posed at ``frame_index``, written to
-    ``out_path`` (``.mp4`` or ``.gif``) at ``fps``. Returns the path."""
-    out = check_destination(out_path, suffixes=VIDEO_SUFFIXES, size=(size, size))
-    mode = _check_mode(mode)
-    if frames < 1:
-        raise ValueError(f"orbit needs at least 1 frame, found {frames}")
-    if size < 2:
-        raise ValueError(f"size must be at least 2 pixels, found {size}")
+# ----------------------------------------------------------------------------- plans
+@dataclass
+class ExportPlan:
+    """What a video export draws: frame ``i`` is ``snapshot(i)`` seen by ``cameras[i]``.
+    Building a plan checks the destination and settings but renders nothing; the headless
+    commands render it offscreen (``render_plan``), the studio on its window's context."""
+
+    out: Path
+    cameras: list
+    snapshot: Callable[[int], object]
+    fps: float
+    desc: str
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+
+def _check_video_settings(fps, size=None) -> None:
     if not fps or fps <= 0:
         raise ValueError(f"fps must be positive, found {fps}")
+    if size is not None and size < 2:
+        raise ValueError(f"size must be at least 2 pixels, found {size}")
+
+
+def plan_orbit(session, out_path, *, frames: int = 60, size: int = 512, fps: float = 30, frame_index: int = 0,
+               elevation: float = 5.0) -> ExportPlan:
+    """A full 360° orbit (``frames`` views) around the avatar posed at ``frame_index``."""
+    out = check_destination(out_path, suffixes=VIDEO_SUFFIXES, size=(size, size))
+    if frames < 1:
+        raise ValueError(f"orbit needs at least 1 frame, found {frames}")
+    _check_video_settings(fps, size)
     n = len(session.scene.frames)
     if not 0 <= frame_index < n:
         raise ValueError(f"frame {frame_index} is out of range: the scene has {n} frames (0..{n - 1})")
     snap = session.make_snapshot("observation", frame_index)
     cameras = orbit_cameras(snap, frames, size, size, elevation=elevation)
-    with _Renderer() as renderer:
-        renderer.set_snapshot(snap)
-        images = (_render(renderer, cam, mode, background)
-                  for cam in _progress(cameras, len(cameras), "orbit", progress))
-        with atomic_output(out) as tmp:
-            write_frames(images, tmp, fps)
-    return out
+    return ExportPlan(out, cameras, lambda i: snap, float(fps), "orbit")
 
 
-def export_poses(session, out_path, *, scene=None, size: int | None = 512, fps: float | None = None, camera=None,
-                 mode="rgb", background=(0, 0, 0), progress: bool = True) -> Path:
-    """One frame per pose of ``scene`` (default the session's own scene) seen from that frame's
-    training camera (or the given ``camera``), longer side ``size`` pixels (None: the camera's
-    size), at ``fps`` (default the scene's). Returns the path."""
+def plan_poses(session, out_path, *, scene=None, size: int | None = 512, fps: float | None = None,
+               camera=None) -> ExportPlan:
+    """One frame per pose of ``scene`` (default the session's own) from that frame's training
+    camera (or ``camera``), longer side ``size`` pixels, at ``fps`` (default the scene's)."""
     own = scene is None or scene is session.scene
     scene = session.scene if scene is None else scene
     if not own and scene.body != session.scene.body:
@@ -240,28 +254,103 @@ def export_poses(session, out_path, *, scene=None, size: int | None = 512, fps: 
     if not scene.frames:
         raise ValueError(f"scene {scene.name}: no frames to export")
     fps = float(scene.fps if fps is None else fps)
-    if fps <= 0:
-        raise ValueError(f"fps must be positive, found {fps}")
-    mode = _check_mode(mode)
+    _check_video_settings(fps)
     cams = [_fit_camera(camera if camera is not None else f.camera, size) for f in scene.frames]
     first = cams[0]
     out = check_destination(out_path, suffixes=VIDEO_SUFFIXES, size=(first.width, first.height))
     if out.suffix.lower() == ".gif" and len({(c.width, c.height) for c in cams}) > 1:
         raise ValueError(f"{out}: the scene's cameras differ in image size; pass a camera")
+    frames = scene.frames
 
-    def snapshots():
-        for i, f in enumerate(scene.frames):
-            yield session.make_snapshot("observation", i) if own else _snapshot_at_pose(session, f.pose, i)
+    def snapshot(i):
+        return session.make_snapshot("observation", i) if own else _snapshot_at_pose(session, frames[i].pose, i)
 
+    return ExportPlan(out, cams, snapshot, fps, "poses")
+
+
+def plan_novel(session, out_path, name: str = "walk", *, frames: int = 30, size: int | None = 512,
+               fps: float | None = None, camera=None) -> ExportPlan:
+    """A novel pose sequence (``reconstruct.body.novel_poses``: walk cycle, arms up) placed where
+    the video's first frame stands, seen from its training camera (or ``camera``)."""
+    from reconstruct.body.novel_poses import novel_pose_sequence
+
+    fps = float(session.scene.fps if fps is None else fps)
+    _check_video_settings(fps)
+    cam = _fit_camera(camera if camera is not None else session.scene.frames[0].camera, size)
+    out = check_destination(out_path, suffixes=VIDEO_SUFFIXES, size=(cam.width, cam.height))
+    poses = novel_pose_sequence(session.body, name, frames, base=session.scene.frames[0].pose)
+    return ExportPlan(out, [cam] * len(poses), lambda i: _snapshot_at_pose(session, poses[i], 0), fps, name)
+
+
+def render_plan(plan: ExportPlan, *, mode="rgb", background=(0, 0, 0), progress: bool = True) -> Path:
+    """Render ``plan`` offscreen (EGL) and write it atomically. Returns the path."""
+    mode = _check_mode(mode)
     with _Renderer() as renderer:
         def images():
-            for cam, snap in _progress(zip(cams, snapshots()), len(cams), "poses", progress):
-                renderer.set_snapshot(snap)
+            for i, cam in _progress(enumerate(plan.cameras), len(plan), plan.desc, progress):
+                renderer.set_snapshot(plan.snapshot(i))
                 yield _render(renderer, cam, mode, background)
 
-        with atomic_output(out) as tmp:
-            write_frames(images(), tmp, fps)
-    return out
+        with atomic_output(plan.out) as tmp:
+            write_frames(images(), tmp, plan.fps)
+    return plan.out
+
+
+def frozen_copy(session):
+    """A copy of ``session`` whose avatar no longer changes: the model, the seen flags and the
+    pose corrections are copied (the scene and body are shared). Take it between training steps
+    (the studio asks its trainer thread); exports then run from it while training goes on."""
+    import copy
+
+    import torch
+
+    from reconstruct.snapshot import SnapshotBox
+
+    f = copy.copy(session)
+    f.model = copy.deepcopy(session.model, memo={id(session.body): session.body, id(session.scene): session.scene})
+    f.seen = session.seen.clone()
+    f.latest = dict(session.latest)
+    f.snapshots = SnapshotBox()
+    for name in ("_transforms", "_articulations"):  # caches the trainer may add to meanwhile
+        if isinstance(getattr(session, name, None), dict):
+            setattr(f, name, dict(getattr(session, name)))
+    if hasattr(session, "pose_delta"):
+        with torch.no_grad():
+            f.pose_delta = torch.nn.Parameter(session.pose_delta.detach().clone(), requires_grad=False)
+    f.run_dir = None  # a copy never writes to the run
+    f.log = None
+    return f
+
+
+# ----------------------------------------------------------------------------- public API
+def export_orbit(session, out_path, *, frames: int = 60, size: int = 512, fps: float = 30, frame_index: int = 0,
+                 elevation: float = 5.0, mode="rgb", background=(0, 0, 0), progress: bool = True) -> Path:
+    """A full 360° orbit (``frames`` views) around the avatar posed at ``frame_index``, written to
+    ``out_path`` (``.mp4`` or ``.gif``) at ``fps``. Returns the path."""
+    check_destination(out_path, suffixes=VIDEO_SUFFIXES, size=(size, size))
+    mode = _check_mode(mode)
+    plan = plan_orbit(session, out_path, frames=frames, size=size, fps=fps, frame_index=frame_index,
+                      elevation=elevation)
+    return render_plan(plan, mode=mode, background=background, progress=progress)
+
+
+def export_poses(session, out_path, *, scene=None, size: int | None = 512, fps: float | None = None, camera=None,
+                 mode="rgb", background=(0, 0, 0), progress: bool = True) -> Path:
+    """One frame per pose of ``scene`` (default the session's own scene) seen from that frame's
+    training camera (or the given ``camera``), longer side ``size`` pixels (None: the camera's
+    size), at ``fps`` (default the scene's). Returns the path."""
+    mode = _check_mode(mode)
+    plan = plan_poses(session, out_path, scene=scene, size=size, fps=fps, camera=camera)
+    return render_plan(plan, mode=mode, background=background, progress=progress)
+
+
+def export_novel(session, out_path, name: str = "walk", *, frames: int = 30, size: int | None = 512,
+                 fps: float | None = None, camera=None, mode="rgb", background=(0, 0, 0),
+                 progress: bool = True) -> Path:
+    """A novel pose sequence (walk cycle, arms up) of ``frames`` frames; see ``plan_novel``."""
+    mode = _check_mode(mode)
+    plan = plan_novel(session, out_path, name, frames=frames, size=size, fps=fps, camera=camera)
+    return render_plan(plan, mode=mode, background=background, progress=progress)
 
 
 def export_screenshot(session, out_path, camera=None, *, frame_index: int = 0, size: int | None = None,
@@ -287,11 +376,14 @@ def export_screenshot(session, out_path, camera=None, *, frame_index: int = 0, s
 
 def export(session, out_path, **kwargs) -> Path:
     """Dispatch by suffix: ``.png`` -> screenshot, ``.mp4``/``.gif`` -> orbit (or poses with
-    ``poses=True``)."""
+    ``poses=True``, or a novel pose sequence with ``novel="walk"``)."""
     suffix = Path(out_path).suffix.lower()
     if suffix in IMAGE_SUFFIXES:
         return export_screenshot(session, out_path, **kwargs)
     if suffix in VIDEO_SUFFIXES:
+        novel = kwargs.pop("novel", None)
+        if novel:
+            return export_novel(session, out_path, novel, **kwargs)
         if kwargs.pop("poses", False):
             return export_poses(session, out_path, **kwargs)
         return export_orbit(session, out_path, **kwargs)

@@ -159,3 +159,38 @@ def test_cli_export(tmp_path, capsys):
     capsys.readouterr()
     assert {p.name: p.stat().st_mtime_ns for p in run.iterdir()} == before  # the run folder is untouched
     assert not (tmp_path / "x.gif").exists() and not (tmp_path / "missing").exists()
+
+
+def test_trained_avatar_exports_mp4_and_gif_with_the_right_frames(tmp_path, capsys):
+    """A briefly trained run (a checkpoint after some steps) exported from the command line: an orbit
+    as mp4 and a novel walk cycle as gif, reopened and checked for frame count, size and content."""
+    from app.cli import main
+
+    scene = "synthetic:seed=1,frames=3,size=64,azimuths=8,eval_frames=1,texture_size=128"
+    run = tmp_path / "run"
+    assert main(["train", "--scene", scene, "--out", str(run), "--iters", "20", "--gaussian-res", "48", "--hidden",
+                 "32", "--quiet", "--set", "crop_margin=4"]) == 0
+    assert (run / "checkpoint.pt").is_file()
+    assert main(["export", str(run), "--orbit", "10", "--out", str(tmp_path / "orbit.mp4"), "--size", "96",
+                 "--fps", "10", "--quiet"]) == 0
+    assert main(["export", str(run), "--novel", "walk", "--frames", "8", "--out", str(tmp_path / "walk.gif"),
+                 "--size", "80", "--fps", "8", "--quiet"]) == 0
+    assert main(["export", str(run), "--novel", "arms_up", "--frames", "6", "--out", str(tmp_path / "up.mp4"),
+                 "--size", "64", "--quiet"]) == 0
+    capsys.readouterr()
+    orbit = iio.imread(tmp_path / "orbit.mp4", index=None, plugin="pyav")
+    assert orbit.shape == (10, 96, 96, 3), orbit.shape
+    meta = iio.immeta(tmp_path / "orbit.mp4", plugin="pyav")
+    assert meta["fps"] == pytest.approx(10.0)
+    walk = _frames(tmp_path / "walk.gif")
+    assert walk.shape[:3] == (8, 80, 80), walk.shape
+    assert iio.immeta(tmp_path / "walk.gif")["duration"] == pytest.approx(125, abs=10)  # ms per frame at 8 fps
+    up = iio.imread(tmp_path / "up.mp4", index=None, plugin="pyav")
+    assert up.shape[:3] == (6, 64, 64)
+    for frames in (orbit, walk[..., :3], up):
+        assert (frames.max(-1) > 40).mean(axis=(1, 2)).min() > 0.02  # the avatar is in every frame
+    # the walk moves: consecutive frames differ; arms up: the top rows fill as the arms rise
+    assert min(np.abs(walk[k].astype(int) - walk[k + 1].astype(int)).mean() for k in range(7)) > 0.1
+    assert main(["export", str(run), "--novel", "moonwalk", "--out", str(tmp_path / "m.gif")]) == 2
+    assert "walk, arms_up" in capsys.readouterr().err
+    assert not (tmp_path / "m.gif").exists()

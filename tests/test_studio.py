@@ -67,7 +67,7 @@ SCRIPT = textwrap.dedent("""
         result["frames"] = app.frame_count + 1
         result["phase"] = state["phase"]
 
-    rc = run_studio({scene!r}, None, config=cfg, size=(320, 240), max_frames=1500, script=script,
+    rc = run_studio({scene!r}, None, config=cfg, size=(320, 240), max_frames=1500, script=script, idle_fps=30,
                     screenshot=out + "_final.png", progress=False)
     result["rc"] = rc
     json.dump(result, open(out + ".json", "w"))
@@ -109,3 +109,110 @@ def test_no_display_prints_one_line_and_fails():
     assert len(lines) == 1, proc.stdout
     assert "no display" in lines[0] and "wonderhuman-studio demo" in lines[0]
     assert "train" in lines[0] and "export" in lines[0]
+
+
+EXPORT_SCRIPT = textwrap.dedent("""
+    import json, sys, time
+    sys.path.insert(0, {root!r})
+    sys.path.insert(0, {root!r} + "/tests")
+    from app.studio.window import run_studio
+    from studio_driver import tiny_config
+
+    out, run = {out!r}, {run!r}
+    result = {{}}
+    state = {{"phase": 0}}
+
+    def script(app):
+        s = app.session
+        p = state["phase"]
+        if p == 0 and s.step_count >= 2 and len(s.snapshots.latest()):
+            # an export to a folder that does not exist: refused at once, training goes on
+            app.export_settings.out = out + "_missing/x.gif"
+            result["bad_job"] = app.start_export() is not None
+            result["bad_message"] = app.export_message
+            e = app.export_settings
+            e.kind, e.frames, e.size, e.fps, e.out = "orbit", 6, 64, 12, out + "_orbit.gif"
+            app.start_export()
+            result["step_at_export_start"] = s.step_count
+            state["phase"] = 1
+        elif p == 1 and app.export_job.done:
+            result["orbit"] = str(app.export_job.result) if app.export_job.result else app.export_job.error
+            result["steps_during_export"] = s.step_count - result["step_at_export_start"]
+            e = app.export_settings
+            e.kind, e.frames, e.size, e.out = "walk", 5, 64, out + "_walk.mp4"
+            app.start_export()
+            state["phase"] = 2
+        elif p == 2 and app.export_job.done:
+            result["walk"] = str(app.export_job.result) if app.export_job.result else app.export_job.error
+            # a novel pose in the live view
+            app.set_pose_source("arms_up")
+            app.set_pose_frame(app.num_pose_frames - 1)
+            state["phase"] = 3
+        elif p == 3:
+            c = app.controls.get()
+            if c.novel == "arms_up" and app.trainer._published and app.trainer._published[0][2] == "arms_up" \\
+                    and app.trainer._published[0][3] == app.num_pose_frames - 1:
+                result["novel_published"] = True
+                result["step_before_close"] = s.step_count
+                app.close()  # mid-training: the trainer is not paused
+        result["phase"] = state["phase"]
+
+    rc = run_studio({scene!r}, run, config=tiny_config(), size=(320, 240), max_frames=3000, script=script,
+                    idle_fps=30, progress=False)
+    result["rc"] = rc
+    json.dump(result, open(out + ".json", "w"))
+""")
+
+
+@pytest.mark.gl
+def test_studio_exports_while_training_and_saves_on_close(tmp_path):
+    import imageio.v3 as iio
+    import torch
+
+    out, run = str(tmp_path / "studio"), tmp_path / "run"
+    script = tmp_path / "studio_export.py"
+    script.write_text(EXPORT_SCRIPT.format(root=str(ROOT), out=out, run=str(run), scene=SCENE))
+    proc = subprocess.run(["xvfb-run", "-a", sys.executable, str(script)], capture_output=True, text=True, check=False,
+                          timeout=300, cwd=str(tmp_path))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    result = json.loads(Path(out + ".json").read_text())
+    assert result["rc"] == 0 and result["phase"] == 3, result
+    # the unwritable path: refused with a message, no job, nothing created
+    assert result["bad_job"] is False and "does not exist" in result["bad_message"], result
+    assert not Path(out + "_missing").exists()
+    # the orbit gif and the novel walk mp4, written while training went on
+    assert result["orbit"] == out + "_orbit.gif", result
+    assert iio.imread(out + "_orbit.gif", index=None).shape[:3] == (6, 64, 64)
+    assert result["walk"] == out + "_walk.mp4", result
+    walk = iio.imread(out + "_walk.mp4", index=None, plugin="pyav")
+    assert walk.shape[0] == 5 and walk.shape[1:3] == (64, 64)
+    assert result["steps_during_export"] >= 1, result  # training did not wait for the export
+    assert result["novel_published"]
+    # closing the window mid-training saved a checkpoint first
+    state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
+    assert state["step"] >= result["step_before_close"] >= 2
+    assert "saved" in proc.stderr and "checkpoint.pt" in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []  # no temporary files
+
+
+@pytest.mark.gl
+def test_scene_that_fails_to_load_is_shown_in_the_window(tmp_path):
+    from PIL import Image
+
+    code = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT)!r})
+        from app.studio.window import run_studio
+        sys.exit(run_studio({str(tmp_path / 'no_such_scene')!r}, None, size=(640, 400), max_frames=5,
+                            screenshot={str(tmp_path / 'error.png')!r}, progress=False))
+    """)
+    proc = subprocess.run(["xvfb-run", "-a", sys.executable, "-c", code], capture_output=True, text=True, check=False,
+                          timeout=120, cwd=str(tmp_path))
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "could not open the scene" in proc.stderr and "no_such_scene" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    img = np.asarray(Image.open(tmp_path / "error.png").convert("RGB"), np.int32)
+    assert img.shape == (400, 640, 3)
+    # the error text is drawn in the window (reddish text over the dark window)
+    red = (img[..., 0] > 200) & (img[..., 1] < 160) & (img[..., 2] < 150)
+    assert red.sum() > 100, red.sum()
