@@ -122,6 +122,11 @@ def rasterize_reference(
         included[sel] = take[index]
         opacity_after[sel] = (1.0 - after)[index].detach()
 
+    if depth_max == 0:
+        # nothing to composite (every Gaussian culled): keep the outputs attached to the inputs, with
+        # zero gradients, as the compiled kernel's are -- else a loss on them cannot be backpropagated
+        zero = sum((t * 0.0).sum() for t in (means2d, conics, opacities, features))
+        color, weight = color + zero, weight + zero
     image = (color + transmittance[:, None] * background).reshape(height, width, C)
     first_hit = None
     if return_first_hit:
