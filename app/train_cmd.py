@@ -15,24 +15,40 @@ class RunLockedError(RuntimeError):
 
 
 class RunLock:
-    """Refuses a second training process on the same run folder (a pid file, stale ones ignored)."""
+    """Refuses a second training process on the same run folder: an exclusive ``flock`` on
+    ``RUN/.lock`` held for the whole run (the kernel drops it when the process dies, even by
+    SIGKILL), with the holder's pid written inside for the message."""
 
     def __init__(self, run_dir: Path) -> None:
         self.path = run_dir / ".lock"
+        self._fh = None
 
     def __enter__(self):
-        if self.path.exists():
-            try:
-                pid = int(self.path.read_text().strip() or 0)
-                os.kill(pid, 0)
-                raise RunLockedError(f"{self.path.parent}: another training process (pid {pid}) is using this run folder")
-            except (ValueError, ProcessLookupError, PermissionError):
-                pass  # stale lock
-        self.path.write_text(str(os.getpid()))
+        import fcntl
+
+        fh = open(self.path, "a+")
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            fh.seek(0)
+            pid = fh.read().strip() or "?"
+            fh.close()
+            raise RunLockedError(f"{self.path.parent}: another training process (pid {pid}) is using this run folder")
+        fh.seek(0)
+        fh.truncate()
+        fh.write(str(os.getpid()))
+        fh.flush()
+        self._fh = fh
         return self
 
     def __exit__(self, *exc):
-        self.path.unlink(missing_ok=True)
+        import fcntl
+
+        if self._fh is not None:  # the file stays (unlinking it would let two holders lock two inodes)
+            self._fh.truncate(0)
+            fcntl.flock(self._fh, fcntl.LOCK_UN)
+            self._fh.close()
+            self._fh = None
 
 
 def _run(session, desc: str, progress: bool) -> None:

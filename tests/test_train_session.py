@@ -141,14 +141,15 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
 def test_second_trainer_on_a_run_folder_is_refused(tmp_path):
     from app.train_cmd import RunLock, RunLockedError
 
-    (tmp_path / ".lock").write_text(str(os.getpid()))
-    with pytest.raises(RunLockedError, match="another training process"):
-        with RunLock(tmp_path):
-            pass
-    (tmp_path / ".lock").write_text("999999999")  # stale
-    with RunLock(tmp_path):
+    with RunLock(tmp_path):  # held: a second holder (another open file description) is refused
         assert (tmp_path / ".lock").read_text() == str(os.getpid())
-    assert not (tmp_path / ".lock").exists()
+        with pytest.raises(RunLockedError, match=f"another training process \\(pid {os.getpid()}\\)"):
+            with RunLock(tmp_path):
+                pass
+    (tmp_path / ".lock").write_text("999999999")  # a lock file left by a dead process does not block
+    with RunLock(tmp_path):
+        pass
+    assert (tmp_path / ".lock").read_text() == ""
 
 
 def test_pose_refinement_moves_the_poses(tiny_scene, tiny_config):

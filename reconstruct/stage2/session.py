@@ -37,7 +37,7 @@ from ..train import losses as L
 from ..train.checkpoint import CheckpointError, load_checkpoint
 from ..train.config import Stage1Config
 from ..train.render import crop_camera, render_avatar
-from ..train.session import CHECKPOINT_NAME, TrainingSession
+from ..train.session import CHECKPOINT_NAME, TrainingSession, gaussians_finite
 from .config import Stage2Config
 from .propagation import PropagationConfig, erode, propagate_colors, texel_neighbours
 from .view_selection import CandidateView, ViewSelectionConfig, azimuth_of, elevation_of, select_views
@@ -356,6 +356,8 @@ class Stage2Session(TrainingSession):
             posed = self.model.pose(canon, self.frame_transforms(frame))
             from ..body.lbs import apply_normals
             body_normals = apply_normals(M, self.model.base_normals)
+        if not gaussians_finite(posed):
+            return self._skipped_step(-1 if frame is None else frame, t0, {})
         camera = framed_camera(view.camera, posed.means, s2.prior_size)
         r = render_avatar(posed, camera, self.guidance_background, normals=s2.unseen_normals)
         render = r.rgb

@@ -30,6 +30,12 @@ CHECKPOINT_NAME = "checkpoint.pt"
 GOOD_STATE_EVERY = 100  # steps between in-memory copies of the last good state
 
 
+def gaussians_finite(g) -> bool:
+    """Whether posed Gaussians are all finite (a bad decoder output or pose must not reach the
+    rasterizer, whose input check would stop the run)."""
+    return all(bool(torch.isfinite(t).all()) for t in (g.means, g.scales, g.colors, g.normals))
+
+
 class TrainingSession:
     stage = 1
     marks_seen = True  # Stage I marks first-hit Gaussians as seen (Eq. 7); Stage II keeps the flags
@@ -147,6 +153,8 @@ class TrainingSession:
         canon, extra = self._canonical_for_step(i)
         transforms = self.frame_transforms(i, refined=refine)
         posed = self.model.pose(canon, transforms)
+        if not gaussians_finite(posed):
+            return self._skipped_step(i, t0, {})
         r = render_avatar(posed, tgt["camera"], self.background, normals=self.use_normals, first_hit=True,
                           hit_threshold=cfg.hit_threshold)
         terms = {
