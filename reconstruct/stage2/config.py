@@ -102,11 +102,6 @@ class Stage2Config:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Stage2Config":
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise ValueError(f"unknown Stage II settings {sorted(unknown)}")
-        d = dict(d)
-        if "lr_milestones" in d:
-            d["lr_milestones"] = tuple(d["lr_milestones"])
-        return cls(**d)
+        from ..train.config import config_from_dict
+
+        return config_from_dict(cls, d, "Stage II")

@@ -291,12 +291,8 @@ class Stage2Session(TrainingSession):
             p = max(p, self.stage2_elapsed / (60.0 * self.stage2.minutes))
         return min(p, 1.0)
 
-    def _apply_schedule(self) -> None:
-        from ..train.schedule import step_decay
-
-        mult = step_decay(self.progress, tuple(self.stage2.lr_milestones), self.stage2.lr_gamma)
-        for g, base in zip(self.optimizer.param_groups, self.base_lrs):
-            g["lr"] = base * mult
+    def _lr_decay(self) -> tuple[tuple[float, ...], float]:
+        return tuple(self.stage2.lr_milestones), self.stage2.lr_gamma
 
     def sds_weight(self) -> float:
         return self.stage2.sds_weight(self.stage2_step)

@@ -60,13 +60,15 @@ class Stage1Config:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Stage1Config":
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise ValueError(f"unknown Stage I settings {sorted(unknown)}")
-        d = dict(d)
-        if "lr_milestones" in d:
-            d["lr_milestones"] = tuple(d["lr_milestones"])
-        if "background" in d:
-            d["background"] = tuple(d["background"])
-        return cls(**d)
+        return config_from_dict(cls, d, "Stage I")
+
+
+def config_from_dict(cls, d: dict, what: str):
+    """A config dataclass from its ``to_dict()`` (JSON turns tuples into lists): unknown keys are an
+    error naming them; list values of tuple-typed fields become tuples again."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = set(d) - set(fields)
+    if unknown:
+        raise ValueError(f"unknown {what} settings {sorted(unknown)}")
+    d = {k: (tuple(v) if isinstance(v, list) and str(fields[k].type).startswith("tuple") else v) for k, v in d.items()}
+    return cls(**d)

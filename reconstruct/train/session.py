@@ -137,8 +137,12 @@ class TrainingSession:
     def done(self) -> bool:
         return self.progress >= 1.0
 
+    def _lr_decay(self) -> tuple[tuple[float, ...], float]:
+        """(milestones as fractions of the run, factor) of the step learning-rate decay."""
+        return tuple(self.config.lr_milestones), self.config.lr_gamma
+
     def _apply_schedule(self) -> None:
-        mult = step_decay(self.progress, tuple(self.config.lr_milestones), self.config.lr_gamma)
+        mult = step_decay(self.progress, *self._lr_decay())
         for g, base in zip(self.optimizer.param_groups, self.base_lrs):
             g["lr"] = base * mult
 
