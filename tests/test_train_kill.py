@@ -131,7 +131,7 @@ def test_sigkill_at_random_moments_loses_nothing(tmp_path, capsys):
         done = subprocess.run(_train_cmd(folder, target, *constant_lr), check=False, cwd=ROOT, env=env, capture_output=True,
                               text=True, timeout=300)
         assert done.returncode == 0, done.stderr[-2000:]
-    assert sorted(p.name for p in run.iterdir() if p.name.startswith(".")) == []  # no stale temporaries
+    assert sorted(p.name for p in run.iterdir() if p.name.startswith(".") and p.name != ".lock") == []  # no stale temporaries (.lock: the run lock, kept)
     resumed, uninterrupted = load_checkpoint(ckpt), load_checkpoint(straight / "checkpoint.pt")
     assert resumed["step"] == uninterrupted["step"] == target
     for k, v in uninterrupted["model"].items():
