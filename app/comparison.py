@@ -9,7 +9,10 @@ import torch
 from reconstruct.atomic import atomic_output
 
 
-def write_comparison_sheet(session, path: str | Path, *, frame_index: int | None = None) -> Path:
+def write_comparison_sheet(session, path: str | Path, *, frame_index: int | None = None,
+                           others: list | None = None) -> Path:
+    """Ground truth on top, then one row per avatar: ``session`` and any ``others`` given as
+    ``(label, session)`` pairs on the same scene (e.g. Stage I and Stage II of one run)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -25,23 +28,27 @@ def write_comparison_sheet(session, path: str | Path, *, frame_index: int | None
     if frame_index is None:
         frame_index = views[0].frame_index
     chosen = [v for v in views if v.frame_index == frame_index]
+    rows = [(f"avatar (stage {getattr(session, 'stage', 1)}, step {session.step_count})", session)] + list(others or [])
+    renders = []
     with torch.no_grad():
-        canon = session.model.canonical()
-        posed = session.model.pose(canon, session.frame_transforms(frame_index))
-        renders = [render_avatar(posed, v.camera, session.background, normals=False).rgb.clamp(0, 1) for v in chosen]
-    fig, axes = plt.subplots(2, len(chosen), figsize=(1.6 * len(chosen), 3.8), squeeze=False)
-    for c, (v, r) in enumerate(zip(chosen, renders)):
-        value = float(psnr(r, torch.as_tensor(v.image)))
+        for _, s in rows:
+            posed = s.model.pose(s.canonical_at(frame_index), s.frame_transforms(frame_index))
+            renders.append([render_avatar(posed, v.camera, s.background, normals=False).rgb.clamp(0, 1) for v in chosen])
+    fig, axes = plt.subplots(1 + len(rows), len(chosen), figsize=(1.6 * len(chosen), 1.9 * (1 + len(rows))),
+                             squeeze=False)
+    for c, v in enumerate(chosen):
         color = "tab:orange" if v.seen else "tab:blue"
         axes[0, c].imshow(np.clip(v.image, 0, 1))
         axes[0, c].set_title(f"az {v.azimuth_deg:.0f}° {'seen' if v.seen else 'unseen'}", fontsize=7, color=color)
-        axes[1, c].imshow(r.numpy())
-        axes[1, c].set_title(f"{value:.1f} dB", fontsize=7)
+        for r, row in enumerate(renders, start=1):
+            axes[r, c].imshow(row[c].numpy())
+            axes[r, c].set_title(f"{float(psnr(row[c], torch.as_tensor(v.image))):.1f} dB", fontsize=7)
         for ax in axes[:, c]:
             ax.set_xticks([])
             ax.set_yticks([])
     axes[0, 0].set_ylabel("ground truth", fontsize=8)
-    axes[1, 0].set_ylabel(f"avatar (step {session.step_count})", fontsize=8)
+    for r, (label, _) in enumerate(rows, start=1):
+        axes[r, 0].set_ylabel(label, fontsize=7)
     fig.tight_layout()
     path = Path(path)
     with atomic_output(path) as tmp:
