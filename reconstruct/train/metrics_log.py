@@ -16,7 +16,12 @@ class MetricsLog:
         line = (json.dumps(record, separators=(",", ":")) + "\n").encode()
         fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         try:
-            os.write(fd, line)
+            start = os.fstat(fd).st_size
+            written = os.write(fd, line)
+            if written != len(line):  # a short write (disk nearly full): take the partial line back
+                os.ftruncate(fd, start)
+                raise OSError(28, f"{self.path}: metrics record not written (short write, {written} of "
+                              f"{len(line)} bytes)")
         finally:
             os.close(fd)
 
