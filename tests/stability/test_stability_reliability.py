@@ -192,3 +192,21 @@ def test_train_command_reports_a_failed_checkpoint(tmp_path, monkeypatch, capsys
     monkeypatch.undo()
     assert main(args) == 0
     assert load_checkpoint(run / "checkpoint.pt")["step"] == 6
+
+
+def test_short_write_of_a_metrics_record_is_taken_back(tmp_path, monkeypatch):
+    """A nearly full disk writes part of a line: the log must not keep it (it would join the next
+    record and lose that one too)."""
+    import os as _os
+
+    from reconstruct.train.metrics_log import MetricsLog
+
+    log = MetricsLog(tmp_path / "metrics.jsonl")
+    log.append({"kind": "train", "step": 1})
+    real = _os.write
+    monkeypatch.setattr("reconstruct.train.metrics_log.os.write", lambda fd, b: real(fd, b[: len(b) // 2]))
+    with pytest.raises(OSError, match="short write"):
+        log.append({"kind": "train", "step": 2})
+    monkeypatch.undo()
+    log.append({"kind": "train", "step": 3})
+    assert [r["step"] for r in log.read()] == [1, 3]
