@@ -76,7 +76,7 @@ def child(kind: str, seconds: float, warmup: float, out: str) -> None:
     Path(out).write_text(json.dumps(result))
 
 
-def screenshots(folder: str, train_s: float) -> None:
+def screenshots(folder: str, train_s: float, run: str | None = None) -> None:
     """docs/ screenshots of the window on the demo scene: training panel with plots after
     ``train_s`` seconds, then Stage II started (its panel with the λ_SDS curve), then the
     visibility map beside the ground truth."""
@@ -104,6 +104,7 @@ def screenshots(folder: str, train_s: float) -> None:
         elif p == 4:  # a frame later: the visibility map from an unseen evaluation view, beside its ground truth
             app.set_mode("visibility")
             app.show_ground_truth = True
+            app.show_gui = False  # the panels would cover the two halves
             unseen = [k for k, v in enumerate(app.scene.eval_views) if not v.seen and abs(v.azimuth_deg) >= 60]
             app.snap_to_eval_view(unseen[0] if unseen else 0)
             st["phase"], st["t2"] = 2, now
@@ -118,8 +119,19 @@ def screenshots(folder: str, train_s: float) -> None:
         elif p == 3:
             app.close()
 
-    run_studio(DEFAULT_SCENE, None, config=Stage1Config(eval_every_seconds=20), size=(1280, 800), script=script,
-               progress=False)
+    if run is None:
+        run_studio(DEFAULT_SCENE, None, config=Stage1Config(eval_every_seconds=20), size=(1280, 800), script=script,
+                   progress=False)
+        return
+    import json
+    import shutil
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:  # a copy: closing the window saves into the run
+        copy = Path(tmp) / "run"
+        shutil.copytree(run, copy, ignore=shutil.ignore_patterns(".lock"))
+        scene = json.loads((copy / "run.json").read_text())["scene"]
+        run_studio(scene, copy, size=(1280, 800), script=script, progress=False)
 
 
 def main() -> int:
@@ -131,6 +143,7 @@ def main() -> int:
     ap.add_argument("--json", default=None)
     ap.add_argument("--screenshots", metavar="DIR", default=None, help="write the docs/ screenshots instead")
     ap.add_argument("--train-seconds", type=float, default=90.0, help="with --screenshots: training before the first")
+    ap.add_argument("--run", default=None, help="with --screenshots: open (a copy of) this trained Stage I run")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--out", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -138,7 +151,7 @@ def main() -> int:
         child(args.child, args.seconds, args.warmup, args.out)
         return 0
     if args.screenshots:
-        screenshots(args.screenshots, args.train_seconds)
+        screenshots(args.screenshots, args.train_seconds, args.run)
         return 0
     kinds = [k.strip() for k in args.kinds.split(",")]
     rows = []

@@ -144,3 +144,28 @@ def test_novel_pose_published_in_live_view(trainer):
     # arms up: the highest Gaussians are now the hands, well above the head of the video pose
     assert novel.means[:, 2].max() > video.means[:, 2].max() + 0.1
     assert np.allclose(novel.scales, video.scales)
+
+
+def test_reopened_run_shows_its_logged_curves(tiny_scene, tiny_config, tmp_path):
+    """The training panel's plots of a reopened run start from its metrics log, not empty."""
+    from app.studio.trainer_thread import TrainerThread
+    from reconstruct.train.session import TrainingSession
+
+    s = TrainingSession(tiny_scene, tiny_config, tmp_path)
+    for _ in range(4):
+        s.advance(log_every=2)
+    s.maybe_evaluate(force=True)
+    rows = TrainerThread(s).history()
+    assert [r.step for r in rows] == [1, 2, 4, 4]  # evaluation at the first step, losses every 2, evaluation
+    assert rows[-1].seen_psnr == pytest.approx(s.latest["seen_psnr"]) and rows[1].loss > 0
+
+
+def test_sds_curve_follows_the_stage2_schedule():
+    """The Stage II panel's λ_SDS curve is Eq. 14 over schedule epochs of the configured length."""
+    from app.studio.panels import sds_curve
+
+    settings = {"lambda_sds": 0.3, "sds_t0": 100.0, "sds_k": 100.0, "progressive": True}
+    x, y = sds_curve(settings, 800, points=801)  # default epoch_steps 2: halved at 400 and 600
+    assert y[399] == 0.3 and y[400] == 0.15 and y[600] == 0.075
+    x, y = sds_curve({**settings, "progressive": False}, 800, points=801)
+    assert set(y) == {0.3}

@@ -135,11 +135,12 @@ def _stage2_defaults() -> dict:
     return {k: getattr(cfg, k) for k in STAGE2_SETTINGS}
 
 
-def sds_curve(settings: dict, steps: int, epoch_steps: int = 5, points: int = 200) -> tuple[np.ndarray, np.ndarray]:
+def sds_curve(settings: dict, steps: int, epoch_steps: float | None = None, points: int = 200) -> tuple[np.ndarray, np.ndarray]:
     """λ_SDS over Stage II steps 0..steps for the panel's settings (Stage2Config.sds_weight)."""
     from reconstruct.stage2.config import Stage2Config
 
-    cfg = Stage2Config(**{**settings, "prior": "builtin", "prior_path": None}, epoch_steps=epoch_steps)
+    extra = {} if epoch_steps is None else {"epoch_steps": epoch_steps}
+    cfg = Stage2Config(**{**settings, "prior": "builtin", "prior_path": None, **extra})
     x = np.linspace(0.0, float(max(steps, 1)), points)
     return x, np.asarray([cfg.sds_weight(int(v)) for v in x], np.float64)
 
@@ -185,8 +186,11 @@ def stage2_panel(app) -> None:
     ch, v = imgui.checkbox("progressive (halving)", bool(st["progressive"]))
     if ch:
         st["progressive"], changed = v, True
-    epoch_steps = int(getattr(live, "epoch_steps", 5))
-    iters = int(getattr(live, "iters", 1500))
+    from reconstruct.stage2.config import Stage2Config
+
+    default = Stage2Config()
+    epoch_steps = float(getattr(live, "epoch_steps", default.epoch_steps))
+    iters = int(getattr(live, "iters", default.iters))
     step2 = getattr(s, "stage2_step", None) if stage >= 2 else None
     try:
         key = (tuple(sorted((k, str(v)) for k, v in st.items())), iters, epoch_steps)

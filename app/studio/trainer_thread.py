@@ -88,7 +88,7 @@ class TrainerThread:
         self.publish_every = max(1, int(publish_every))
         self.log_every = max(1, int(log_every))
         self.idle_sleep = idle_sleep
-        self._history: list[HistoryRow] = []
+        self._history: list[HistoryRow] = self._logged_history(session)
         self._hist_lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -162,6 +162,27 @@ class TrainerThread:
             except queue.Empty:
                 return
             self._call(fn, fut, self.session)
+
+    @staticmethod
+    def _logged_history(session) -> list[HistoryRow]:
+        """A reopened run's curves so far, from its metrics log (training losses and evaluations)."""
+        log = getattr(session, "log", None)
+        if log is None:
+            return []
+        rows, seen, unseen, nan = [], float("nan"), float("nan"), float("nan")
+        try:
+            records = log.read()
+        except (OSError, ValueError):
+            return []
+        for r in records:
+            if r.get("kind") == "eval":
+                seen = float(r.get("seen_psnr") or nan)
+                unseen = float(r.get("unseen_psnr") or nan)
+            elif "loss" not in r:
+                continue
+            rows.append(HistoryRow(float(r.get("elapsed", 0.0)), int(r.get("step", 0)), float(r.get("loss", nan)),
+                                   seen, unseen, int(r.get("stage", 1))))
+        return rows
 
     def _record(self) -> None:
         s = self.session
