@@ -284,12 +284,8 @@ class Stage2Session(TrainingSession):
         return self._references[frame]
 
     # ----- schedule ----------------------------------------------------------------------------
-    @property
-    def progress(self) -> float:
-        p = self.stage2_step / self.stage2.iters
-        if self.stage2.minutes:
-            p = max(p, self.stage2_elapsed / (60.0 * self.stage2.minutes))
-        return min(p, 1.0)
+    def _length(self) -> tuple[int, int, float, float | None]:
+        return self.stage2_step, self.stage2.iters, self.stage2_elapsed, self.stage2.minutes
 
     def _lr_decay(self) -> tuple[tuple[float, ...], float]:
         return tuple(self.stage2.lr_milestones), self.stage2.lr_gamma

@@ -126,11 +126,17 @@ class TrainingSession:
         return int(self.epoch_order.pop())
 
     # ----- schedule -----------------------------------------------------------------------
+    def _length(self) -> tuple[int, int, float, float | None]:
+        """(steps taken, steps planned, seconds spent, minutes planned) of the running stage."""
+        return self.step_count, self.config.iters, self.elapsed, self.config.minutes
+
     @property
     def progress(self) -> float:
-        p = self.step_count / self.config.iters
-        if self.config.minutes:
-            p = max(p, self.elapsed / (60.0 * self.config.minutes))
+        """Fraction of the running stage done: whichever of steps or minutes ends first."""
+        steps, iters, seconds, minutes = self._length()
+        p = steps / iters
+        if minutes:
+            p = max(p, seconds / (60.0 * minutes))
         return min(p, 1.0)
 
     @property
