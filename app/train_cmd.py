@@ -53,14 +53,17 @@ class RunLock:
 
 def _run(session, desc: str, progress: bool) -> None:
     """Steps until the session's stage is done, with a progress bar; saves on the way out."""
-    total = session.stage2.iters if getattr(session, "stage", 1) == 2 else session.config.iters
-    done = session.stage2_step if getattr(session, "stage", 1) == 2 else session.step_count
+    done, total, _, minutes = session.run_length()
     session.maybe_evaluate(force=done == 0)
-    bar = tqdm(total=total, initial=done, desc=desc, disable=not progress, unit="it")
+    # a bar over steps, or over the stage's progress in per mille when minutes may end it first
+    by_time = bool(minutes)
+    bar = tqdm(total=1000 if by_time else total, initial=round(1000 * session.progress) if by_time else done,
+               desc=desc + (f" ({minutes:g} min)" if by_time else ""), disable=not progress,
+               unit="‰" if by_time else "it")
     try:
         while not session.done:
             out, _ = session.advance()
-            bar.update()
+            bar.update(round(1000 * session.progress) - bar.n if by_time else 1)
             if session.step_count % 25 == 0 and not out.get("skipped"):
                 bar.set_postfix(loss=f"{out['loss']:.4f}",
                                 seen=f"{session.latest.get('seen_psnr', float('nan')):.1f}",

@@ -284,7 +284,7 @@ class Stage2Session(TrainingSession):
         return self._references[frame]
 
     # ----- schedule ----------------------------------------------------------------------------
-    def _length(self) -> tuple[int, int, float, float | None]:
+    def run_length(self) -> tuple[int, int, float, float | None]:
         return self.stage2_step, self.stage2.iters, self.stage2_elapsed, self.stage2.minutes
 
     def _lr_decay(self) -> tuple[tuple[float, ...], float]:

@@ -126,14 +126,14 @@ class TrainingSession:
         return int(self.epoch_order.pop())
 
     # ----- schedule -----------------------------------------------------------------------
-    def _length(self) -> tuple[int, int, float, float | None]:
+    def run_length(self) -> tuple[int, int, float, float | None]:
         """(steps taken, steps planned, seconds spent, minutes planned) of the running stage."""
         return self.step_count, self.config.iters, self.elapsed, self.config.minutes
 
     @property
     def progress(self) -> float:
         """Fraction of the running stage done: whichever of steps or minutes ends first."""
-        steps, iters, seconds, minutes = self._length()
+        steps, iters, seconds, minutes = self.run_length()
         p = steps / iters
         if minutes:
             p = max(p, seconds / (60.0 * minutes))
