@@ -113,7 +113,7 @@ def _snapshot_at_pose(session, pose, frame_index: int = 0):
         rot = np.zeros((n, 4), np.float32)
         rot[:, 0] = 1
         return Snapshot(f32(posed.means), f32(canon.scales), rot, f32(canon.colors), np.ones(n, np.float32),
-                        f32(posed.normals), session.seen.numpy().astype(np.uint8), space="observation",
+                        f32(posed.normals), session.seen_flags().numpy().astype(np.uint8), space="observation",
                         frame_index=frame_index, stage=int(getattr(session, "stage", 1) or 1),
                         step=session.step_count)
 
@@ -309,6 +309,8 @@ def frozen_copy(session):
     f = copy.copy(session)
     f.model = copy.deepcopy(session.model, memo={id(session.body): session.body, id(session.scene): session.scene})
     f.seen = session.seen.clone()
+    if getattr(session, "trusted_seen", None) is not None:
+        f.trusted_seen = session.trusted_seen.clone()
     f.latest = dict(session.latest)
     f.snapshots = SnapshotBox()
     for name in ("_transforms", "_articulations"):  # caches the trainer may add to meanwhile

@@ -19,7 +19,8 @@ class Snapshot:
     means (N,3) float32; scales (N,3) float32 standard deviations; rotations (N,4) float32
     quaternions (w,x,y,z); colors (N,3) float32 in [0,1]; opacities (N,) float32;
     normals (N,3) float32 unit (observation or canonical, matching ``space``);
-    visibility (N,) uint8: 1 where the Gaussian was a first hit on a training ray (paper Eq. 7).
+    visibility (N,) uint8: 1 where the Gaussian was a first hit on a training ray (paper Eq. 7;
+    in Stage II the flags shrunk on the UV grid that view selection used).
     """
 
     means: np.ndarray

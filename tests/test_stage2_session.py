@@ -175,3 +175,15 @@ def test_stage2_with_zero123_prior_runs_dual_space_steps(stage1, tmp_path):
     assert kinds <= {"canonical", "observation"} and kinds
     changed = sum(float((a - p.detach()).abs().max()) > 0 for a, p in zip(before, s2.model.decoder.parameters()))
     assert changed > 0
+
+
+def test_snapshots_show_the_flags_stage2_uses(stage1):
+    """The renderer's visibility mode shows Stage I's flags in Stage I and the eroded ones that
+    drove view selection in Stage II."""
+    from reconstruct.stage2.session import Stage2Session
+
+    assert (stage1.make_snapshot().visibility == stage1.seen.numpy()).all()
+    s2 = Stage2Session.from_stage1(stage1, _cfg())
+    snap = s2.make_snapshot()
+    assert (snap.visibility == s2.trusted_seen.numpy()).all()
+    assert snap.visibility.sum() < int(stage1.seen.sum())  # erosion removed the boundary

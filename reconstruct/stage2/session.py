@@ -181,6 +181,10 @@ class Stage2Session(TrainingSession):
                 BodyPose(p.joint_rotations, np.zeros(3), np.zeros(3))).float().to(self.device)
         return self._articulations[frame_index]
 
+    def seen_flags(self) -> torch.Tensor:
+        """The flags Stage II works with (eroded on the UV grid): what view selection used."""
+        return self.trusted_seen if self.trusted_seen is not None else self.seen
+
     def articulation_of_pose(self, pose: BodyPose) -> torch.Tensor:
         return self.body.bone_transforms(BodyPose(pose.joint_rotations, np.zeros(3), np.zeros(3))).float().to(self.device)
 

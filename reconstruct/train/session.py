@@ -207,6 +207,10 @@ class TrainingSession:
         needed. Stage I's do not depend on the pose."""
         return self.model.canonical()
 
+    def seen_flags(self) -> torch.Tensor:
+        """The per-Gaussian seen flags the renderer's visibility mode shows (Stage I: Eq. 7's)."""
+        return self.seen
+
     def canonical_for_pose(self, pose: BodyPose):
         """Canonical Gaussians for any pose (novel-pose animation); Stage I's do not depend on it."""
         return self.model.canonical()
@@ -335,7 +339,7 @@ class TrainingSession:
         rot = np.zeros((n, 4), np.float32)
         rot[:, 0] = 1
         return Snapshot(f32(means), f32(canon.scales), rot, f32(canon.colors), np.ones(n, np.float32), f32(normals),
-                        self.seen.numpy().astype(np.uint8), space=space, frame_index=frame_index, stage=self.stage,
+                        self.seen_flags().numpy().astype(np.uint8), space=space, frame_index=frame_index, stage=self.stage,
                         step=self.step_count, metrics={k: v for k, v in self.latest.items() if isinstance(v, (int, float))})
 
     def publish(self, space: str = "observation", frame_index: int = 0) -> None:
