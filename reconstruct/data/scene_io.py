@@ -124,13 +124,24 @@ def write_scene(scene: Scene, folder: str | os.PathLike) -> Path:
     return folder
 
 
-def _read_image(path: Path, shape: tuple[int, int], what: str, channels: int) -> np.ndarray:
+def read_image_file(path: Path, what: str, error: type[Exception] = SceneFormatError, as_what: str = "an image"):
+    """The array stored in an image file, or ``error`` naming the file when it is missing or unreadable."""
     if not path.is_file():
-        raise SceneFormatError(f"{path}: missing ({what})")
+        raise error(f"{path}: missing ({what})")
     try:
-        img = iio.imread(path)
+        return iio.imread(path)
     except Exception as exc:
-        raise SceneFormatError(f"{path}: cannot be read as an image ({what}): {exc}") from exc
+        raise error(f"{path}: cannot be read as {as_what} ({what}): {exc}") from exc
+
+
+def image_to_float(img: np.ndarray) -> np.ndarray:
+    """8- or 16-bit image values to float32 in [0, 1]."""
+    scale = 65535.0 if img.dtype == np.uint16 else 255.0
+    return img.astype(np.float32) / scale
+
+
+def _read_image(path: Path, shape: tuple[int, int], what: str, channels: int) -> np.ndarray:
+    img = read_image_file(path, what)
     if channels == 1 and img.ndim == 3:
         img = img[..., 0]
     if channels == 3 and img.ndim == 2:
@@ -139,8 +150,7 @@ def _read_image(path: Path, shape: tuple[int, int], what: str, channels: int) ->
         img = img[..., :3]
     if img.shape[:2] != shape:
         raise SceneFormatError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, the camera expects {shape[1]}x{shape[0]} ({what})")
-    scale = 65535.0 if img.dtype == np.uint16 else 255.0
-    return (img.astype(np.float32) / scale)
+    return image_to_float(img)
 
 
 def read_scene(folder: str | os.PathLike) -> Scene:

@@ -9,13 +9,12 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import imageio.v3 as iio
 import numpy as np
 
 from ...body.pose import BodyPose
 from ...camera import Camera
 from ..scene import EvalView, Frame
-from ..scene_io import SceneFormatError
+from ..scene_io import SceneFormatError, image_to_float, read_image_file
 
 SEEN_ANGLE_DEG = 45.0  # as in the synthetic scene: evaluation views this close to the training camera are "seen"
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
@@ -116,18 +115,12 @@ def parse_options(spec: str, items: list[str]) -> Protocol:
 
 # ----- images and masks -------------------------------------------------------------------------
 def read_rgb(path: Path, what: str) -> np.ndarray:
-    if not path.is_file():
-        raise LoaderError(f"{path}: missing ({what})")
-    try:
-        img = iio.imread(path)
-    except Exception as exc:
-        raise LoaderError(f"{path}: cannot be read as an image ({what}): {exc}") from exc
+    img = read_image_file(path, what, LoaderError)
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)
     if img.ndim != 3 or img.shape[2] < 3:
         raise LoaderError(f"{path}: expected an RGB image ({what}), found an array of shape {img.shape}")
-    scale = 65535.0 if img.dtype == np.uint16 else 255.0
-    return img[..., :3].astype(np.float32) / scale
+    return image_to_float(img[..., :3])
 
 
 def mask_from_array(arr: np.ndarray, path: Path) -> np.ndarray:
@@ -149,14 +142,20 @@ def mask_from_array(arr: np.ndarray, path: Path) -> np.ndarray:
     return (a > 0).astype(np.float32)
 
 
-def read_mask(path: Path, what: str) -> np.ndarray:
+def read_mask_array(path: Path, what: str) -> np.ndarray:
+    """The stored values of a mask file (.npy or an image), or a LoaderError naming the file."""
+    if path.suffix != ".npy":
+        return read_image_file(path, what, LoaderError, "a mask")
     if not path.is_file():
         raise LoaderError(f"{path}: missing ({what})")
     try:
-        arr = np.load(path, allow_pickle=False) if path.suffix == ".npy" else iio.imread(path)
+        return np.load(path, allow_pickle=False)
     except Exception as exc:
         raise LoaderError(f"{path}: cannot be read as a mask ({what}): {exc}") from exc
-    return mask_from_array(arr, path)
+
+
+def read_mask(path: Path, what: str) -> np.ndarray:
+    return mask_from_array(read_mask_array(path, what), path)
 
 
 def check_size(arr: np.ndarray, expected_hw: tuple[int, int], path: Path, what: str, reference: str) -> None:

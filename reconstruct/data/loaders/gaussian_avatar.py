@@ -17,12 +17,12 @@ from __future__ import annotations
 import warnings
 from pathlib import Path
 
-import imageio.v3 as iio
 import numpy as np
 
 from ...body.smpl_backend import smpl_body_pose, smpl_body_spec
 from ..scene import EvalView, Scene
-from .common import IMAGE_EXTS, LoaderError, Protocol, check_size, finish_frame, opencv_camera, read_rgb, smpl_shape_error
+from .common import (IMAGE_EXTS, LoaderError, Protocol, check_size, finish_frame, opencv_camera, read_mask_array,
+                     read_rgb, smpl_shape_error)
 
 NAME = "gaussian_avatar"
 NEEDS = "images/, masks/, cam_parms.npz (or cam_parms/) and smpl_parms.pth (in the folder or its train/)"
@@ -120,8 +120,7 @@ def load(folder: str | Path, protocol: Protocol | None = None) -> Scene:
             size = (rgb.shape[:2], images[k].name)
         check_size(rgb, size[0], images[k], "the image", f"the size of {size[1]}, the first image")
         mpath = masks[images[k].stem]
-        raw = np.load(mpath, allow_pickle=False) if mpath.suffix == ".npy" else iio.imread(mpath)
-        raw = np.asarray(raw, np.float32)
+        raw = np.asarray(read_mask_array(mpath, f"mask of frame {k}"), np.float32)
         raw = raw[..., :3].max(axis=2) if raw.ndim == 3 else raw
         mask = (raw >= 128).astype(np.float32) if raw.max() > 1 else (raw >= 0.5).astype(np.float32)
         check_size(mask, size[0], mpath, "the mask", f"the size of its image {images[k].name}")
