@@ -124,12 +124,23 @@ class AvatarModel(nn.Module):
         return blend(self.skin_weights, pose_transforms.to(self.skin_weights)) @ self.canonical_inverse
 
     def pose(self, canon: CanonicalGaussians, pose_transforms: torch.Tensor) -> PosedGaussians:
-        M = self.lbs_matrices(pose_transforms)
-        n = canon.means.shape[0]
-        quats = torch.zeros(n, 4, dtype=canon.means.dtype, device=canon.means.device)
+        return self.pose_with(canon, self.lbs_matrices(pose_transforms))
+
+    def pose_with(self, canon: CanonicalGaussians, matrices: torch.Tensor) -> PosedGaussians:
+        """The Gaussians moved by per-Gaussian LBS ``matrices`` (N,4,4) (``lbs_matrices``)."""
+        return self.splats(canon, apply_points(matrices, canon.means), apply_normals(matrices, canon.normals))
+
+    @staticmethod
+    def splats(canon: CanonicalGaussians, means: torch.Tensor | None = None,
+               normals: torch.Tensor | None = None) -> PosedGaussians:
+        """Renderable Gaussians at ``means``/``normals`` (default: the canonical ones, i.e. canonical
+        space), with the fixed identity rotation and opacity 1 (paper A.1)."""
+        means = canon.means if means is None else means
+        n = means.shape[0]
+        quats = torch.zeros(n, 4, dtype=means.dtype, device=means.device)
         quats[:, 0] = 1.0
-        return PosedGaussians(apply_points(M, canon.means), apply_normals(M, canon.normals), canon.colors,
-                              canon.scales, quats, torch.ones(n, dtype=canon.means.dtype, device=canon.means.device))
+        return PosedGaussians(means, canon.normals if normals is None else normals, canon.colors, canon.scales, quats,
+                              torch.ones(n, dtype=means.dtype, device=means.device))
 
     def parts(self) -> np.ndarray:
         return self.uv_map.parts

@@ -116,25 +116,30 @@ def posed_position_map(body: BodyModel, uv_map: UVMap, pose: BodyPose, *, includ
     return uv_map.scatter(posed.to(torch.float32))
 
 
+def texel_neighbours(texel_rc: np.ndarray, resolution: int) -> np.ndarray:
+    """(N,4) indices of each texel's valid 4-neighbours in the UV grid, -1 where none."""
+    R = resolution
+    index = np.full((R, R), -1, np.int64)
+    index[texel_rc[:, 0], texel_rc[:, 1]] = np.arange(len(texel_rc))
+    out = np.full((len(texel_rc), 4), -1, np.int64)
+    r, c = texel_rc[:, 0], texel_rc[:, 1]
+    for k, (dr, dc) in enumerate(((0, 1), (1, 0), (0, -1), (-1, 0))):
+        rr, cc = r + dr, c + dc
+        ok = (rr >= 0) & (rr < R) & (cc >= 0) & (cc < R)
+        out[ok, k] = index[rr[ok], cc[ok]]
+    return out
+
+
 def texel_spacing(uv_map: UVMap) -> torch.Tensor:
     """(N,) mean 3D distance from each valid texel's canonical point to its valid 4-neighbours in
     the map (a natural isotropic Gaussian scale); texels without a valid neighbour get the median."""
-    R = uv_map.resolution
-    index = np.full((R, R), -1, np.int64)
-    index[uv_map.texel_rc[:, 0], uv_map.texel_rc[:, 1]] = np.arange(len(uv_map))
     pos = uv_map.positions
     total = torch.zeros(len(uv_map), dtype=pos.dtype)
     count = torch.zeros(len(uv_map), dtype=pos.dtype)
-    r, c = uv_map.texel_rc[:, 0], uv_map.texel_rc[:, 1]
-    for dr, dc in ((0, 1), (1, 0), (0, -1), (-1, 0)):
-        rr, cc = r + dr, c + dc
-        ok = (rr >= 0) & (rr < R) & (cc >= 0) & (cc < R)
-        nb = np.full(len(uv_map), -1, np.int64)
-        nb[ok] = index[rr[ok], cc[ok]]
-        valid = nb >= 0
-        d = (pos[torch.as_tensor(valid)] - pos[torch.as_tensor(nb[valid])]).norm(dim=1)
-        total[torch.as_tensor(valid)] += d
-        count[torch.as_tensor(valid)] += 1
+    for nb in texel_neighbours(uv_map.texel_rc, uv_map.resolution).T:
+        valid = torch.as_tensor(nb >= 0)
+        total[valid] += (pos[valid] - pos[torch.as_tensor(nb[nb >= 0])]).norm(dim=1)
+        count[valid] += 1
     spacing = total / count.clamp_min(1)
     # chart borders can neighbour a far-away chart in the atlas: cap at 3x the median
     med = spacing[count > 0].median()

@@ -1,7 +1,8 @@
 """Appearance propagated from the seen Gaussians to the unseen ones over the body surface: the
 built-in prior's pseudo-appearance (DESIGN.md). No learned weights are involved.
 
-0. The seen set is eroded on the UV grid (``erode``).
+The caller decides which Gaussians count as seen (Stage II: the Stage I flags shrunk by ``erode``).
+
 1. Front/back correspondence by body part: an unseen Gaussian takes the colour of the nearest
    seen Gaussian of the same body part to its mirror image through the part's coronal plane
    (the canonical body faces -Y, so the mirror flips y about the part's mean y). A part with no
@@ -24,23 +25,8 @@ from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
 
 @dataclass(frozen=True)
 class PropagationConfig:
-    erode_iters: int = 2  # trust seen Gaussians only this many texels inside the seen region
     screening: float = 1e-3  # ε: pull of the mirrored colours against diffusion from the seen boundary
     max_mirror_distance: float = 0.15  # metres: farther matches fall back to the diffusion alone
-
-
-def texel_neighbours(texel_rc: np.ndarray, resolution: int) -> np.ndarray:
-    """(N,4) indices of each texel's valid 4-neighbours in the UV grid, -1 where none."""
-    R = resolution
-    index = np.full((R, R), -1, np.int64)
-    index[texel_rc[:, 0], texel_rc[:, 1]] = np.arange(len(texel_rc))
-    out = np.full((len(texel_rc), 4), -1, np.int64)
-    r, c = texel_rc[:, 0], texel_rc[:, 1]
-    for k, (dr, dc) in enumerate(((0, 1), (1, 0), (0, -1), (-1, 0))):
-        rr, cc = r + dr, c + dc
-        ok = (rr >= 0) & (rr < R) & (cc >= 0) & (cc < R)
-        out[ok, k] = index[rr[ok], cc[ok]]
-    return out
 
 
 def mirror_colors(positions: np.ndarray, parts: np.ndarray, seen: np.ndarray, colors: np.ndarray,
@@ -84,19 +70,20 @@ def erode(seen: np.ndarray, neighbours: np.ndarray, iters: int) -> np.ndarray:
     return seen
 
 
-def propagate_colors(positions, parts, seen, colors, texel_rc: np.ndarray, resolution: int,
+def propagate_colors(positions, parts, seen, colors, neighbours: np.ndarray,
                      config: PropagationConfig = PropagationConfig()) -> torch.Tensor:
     """(N,3) float32: the seen Gaussians' colours kept, the unseen ones solved over the UV atlas as
     the minimiser of  sum_edges |c_i - c_j|^2 + ε sum_unseen |c_i - m_i|^2  with the seen colours
     fixed (a screened harmonic fill: diffusion from the visibility boundary, pulled weakly towards
-    the mirrored colours m so islands without a seen boundary still get a colour)."""
+    the mirrored colours m so islands without a seen boundary still get a colour). ``neighbours``:
+    ``texel_neighbours`` of the Gaussians' texels."""
     import scipy.sparse as sp
     from scipy.sparse.linalg import spsolve
 
     pos = np.asarray(torch.as_tensor(positions).double().cpu())
     col = np.asarray(torch.as_tensor(colors).double().cpu())
-    nb = texel_neighbours(texel_rc, resolution)
-    seen_np = erode(np.asarray(torch.as_tensor(seen).bool().cpu()), nb, config.erode_iters)
+    nb = neighbours
+    seen_np = np.asarray(torch.as_tensor(seen).bool().cpu())
     mirrored, _ = mirror_colors(pos, np.asarray(parts), seen_np, col, config)
     free = np.flatnonzero(~seen_np)
     if len(free) == 0:

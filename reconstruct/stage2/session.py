@@ -17,7 +17,6 @@ normals (λ_unseen_normal), the seen ones towards their current values.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import sys
 import time
@@ -39,7 +38,10 @@ from ..train.config import Stage1Config
 from ..train.render import crop_camera, render_avatar
 from ..train.session import CHECKPOINT_NAME, TrainingSession, gaussians_finite
 from .config import Stage2Config
-from .propagation import PropagationConfig, erode, propagate_colors, texel_neighbours
+from ..body.lbs import apply_normals
+from ..body.uv_map import texel_neighbours
+from ..raster import rasterization
+from .propagation import erode, propagate_colors
 from .view_selection import CandidateView, ViewSelectionConfig, azimuth_of, elevation_of, select_views
 
 STAGE1_CHECKPOINT_NAME = "checkpoint_stage1.pt"
@@ -176,9 +178,7 @@ class Stage2Session(TrainingSession):
                 self._canonical_articulation = self.body.canonical_transforms.float().to(self.device)
             return self._canonical_articulation
         if frame_index not in self._articulations:
-            p = self.scene.frames[frame_index].pose
-            self._articulations[frame_index] = self.body.bone_transforms(
-                BodyPose(p.joint_rotations, np.zeros(3), np.zeros(3))).float().to(self.device)
+            self._articulations[frame_index] = self.articulation_of_pose(self.scene.frames[frame_index].pose)
         return self._articulations[frame_index]
 
     def seen_flags(self) -> torch.Tensor:
@@ -188,20 +188,21 @@ class Stage2Session(TrainingSession):
     def articulation_of_pose(self, pose: BodyPose) -> torch.Tensor:
         return self.body.bone_transforms(BodyPose(pose.joint_rotations, np.zeros(3), np.zeros(3))).float().to(self.device)
 
-    def _pose_terms(self, frame_index: int | None):
-        pf = self.model.pose_features(self.articulation(frame_index))
+    def _pose_terms(self, articulation: torch.Tensor):
+        """G([S, P]) for a pose's articulation, and the λ_p regulariser of its pose features."""
+        pf = self.model.pose_features(articulation)
         canon = self.model.canonical(pf)
         extra = {} if pf is None else {"pose_features": (L.mean_square(pf), self.stage2.lambda_pose_features)}
         return canon, extra
 
     def _canonical_for_step(self, frame_index: int):
-        return self._pose_terms(frame_index)
+        return self._pose_terms(self.articulation(frame_index))
 
     def canonical_at(self, frame_index: int | None = None):
-        return self.model.canonical(self.model.pose_features(self.articulation(frame_index)))
+        return self._pose_terms(self.articulation(frame_index))[0]
 
     def canonical_for_pose(self, pose: BodyPose):
-        return self.model.canonical(self.model.pose_features(self.articulation_of_pose(pose)))
+        return self._pose_terms(self.articulation_of_pose(pose))[0]
 
     # ----- preparation: view selection, references, propagated appearance ------------------
     def _view_config(self) -> ViewSelectionConfig:
@@ -218,15 +219,8 @@ class Stage2Session(TrainingSession):
     def _posed(self, frame_index: int | None) -> PosedGaussians:
         canon = self.canonical_at(frame_index)
         if frame_index is None:
-            return self._as_posed(canon)
+            return self.model.splats(canon)
         return self.model.pose(canon, self.frame_transforms(frame_index))
-
-    def _as_posed(self, canon) -> PosedGaussians:
-        n = canon.means.shape[0]
-        quats = torch.zeros(n, 4, dtype=canon.means.dtype, device=canon.means.device)
-        quats[:, 0] = 1
-        return PosedGaussians(canon.means, canon.normals, canon.colors, canon.scales, quats,
-                              torch.ones(n, dtype=canon.means.dtype, device=canon.means.device))
 
     @torch.no_grad()
     def reselect_views(self) -> None:
@@ -262,18 +256,16 @@ class Stage2Session(TrainingSession):
         the propagated appearance (built-in prior's pseudo-target colours)."""
         t0 = time.perf_counter()
         nb = texel_neighbours(self.model.uv_map.texel_rc, self.model.uv_map.resolution)
-        pcfg = PropagationConfig(erode_iters=self.stage2.seen_erosion)
-        self.trusted_seen = torch.as_tensor(erode(self.seen.numpy(), nb, pcfg.erode_iters))
+        self.trusted_seen = torch.as_tensor(erode(self.seen.numpy(), nb, self.stage2.seen_erosion))
         self.reselect_views()
         canon = self.canonical_at(None)
-        g = self._as_posed(canon)
+        g = self.model.splats(canon)
         target = g.means.mean(0).double().cpu().numpy()
         front = Camera.orbit(0.0, 0.0, self._view_config().distance, target, width=512, height=512, fov_y_deg=30.0)
         cam = framed_camera(front, g.means, self.stage2.prior_size)
         self.canonical_reference = render_avatar(g, cam, self.guidance_background, normals=False).rgb.clamp(0, 1)
-        self.pseudo_colors = propagate_colors(self.model.base_positions, self.model.parts(), self.seen, canon.colors,
-                                              self.model.uv_map.texel_rc, self.model.uv_map.resolution,
-                                              pcfg).to(self.device)
+        self.pseudo_colors = propagate_colors(self.model.base_positions, self.model.parts(), self.trusted_seen,
+                                              canon.colors, nb).to(self.device)
         if self.sds_note:
             print(self.sds_note, file=sys.stderr)
         self.elapsed += time.perf_counter() - t0
@@ -343,14 +335,13 @@ class Stage2Session(TrainingSession):
         s2 = self.stage2
         sv, view = self._pick_view(space)
         frame = sv.frame
-        canon, extra = self._pose_terms(frame)
+        canon, extra = self._pose_terms(self.articulation(frame))
         if frame is None:
-            posed = self._as_posed(canon)
+            posed = self.model.splats(canon)
             body_normals = self.model.base_normals
         else:
             M = self.model.lbs_matrices(self.frame_transforms(frame))
-            posed = self.model.pose(canon, self.frame_transforms(frame))
-            from ..body.lbs import apply_normals
+            posed = self.model.pose_with(canon, M)
             body_normals = apply_normals(M, self.model.base_normals)
         if not gaussians_finite(posed):
             return self._skipped_step(-1 if frame is None else frame, t0, {})
@@ -362,10 +353,24 @@ class Stage2Session(TrainingSession):
             render.register_hook(lambda g: g * (clip / g.norm().clamp_min(clip)))
         trusted = self.trusted_seen.to(self.device)[:, None]
 
+        targets: list[torch.Tensor] = []
+
+        def detached_targets() -> torch.Tensor:
+            """One render without gradients, with the avatar's current geometry, of the propagated
+            colours (channels 0-2: the built-in prior's pseudo-target) and the unseen-normal targets
+            in camera space (channels 3-5)."""
+            if not targets:
+                with torch.no_grad():
+                    R = torch.as_tensor(camera.R, dtype=posed.normals.dtype, device=self.device)
+                    n_target = torch.where(trusted, posed.normals, body_normals) @ R.T
+                    bg = torch.cat([self.guidance_background, torch.zeros(3, device=self.device)])
+                    targets.append(rasterization(posed.means.detach(), posed.quats, posed.scales.detach(),
+                                                 posed.opacities, torch.cat([self.pseudo_colors, n_target], 1),
+                                                 camera, background=bg).image)
+            return targets[0]
+
         def pseudo_target() -> torch.Tensor:
-            g = dataclasses.replace(posed, means=posed.means.detach(), scales=posed.scales.detach(),
-                                    colors=self.pseudo_colors)
-            return render_avatar(g, camera, self.guidance_background, normals=False).rgb
+            return detached_targets()[..., :3]
 
         delta = CameraDelta(polar=-math.radians(view.elevation_deg - sv.reference_elevation),
                             azimuth=math.radians(view.azimuth_deg), radius=0.0,
@@ -377,13 +382,7 @@ class Stage2Session(TrainingSession):
         terms = {"sds": guidance.loss}
         weights = {"sds": w}
         if s2.unseen_normals and r.normal is not None:
-            with torch.no_grad():
-                R = torch.as_tensor(camera.R, dtype=posed.normals.dtype, device=self.device)
-                n_target = torch.where(trusted, posed.normals.detach(), body_normals) @ R.T
-                g = dataclasses.replace(posed, means=posed.means.detach(), scales=posed.scales.detach(),
-                                        colors=n_target)
-                normal_target = render_avatar(g, camera, torch.zeros(3, device=self.device), normals=False).rgb
-            terms["unseen_normal"] = L.mse(r.normal, normal_target)
+            terms["unseen_normal"] = L.mse(r.normal, detached_targets()[..., 3:])
             weights["unseen_normal"] = s2.lambda_unseen_normal * (w / s2.lambda_sds if s2.lambda_sds > 0 else 0.0)
         for k, (term, wt) in extra.items():
             terms[k], weights[k] = term, wt
