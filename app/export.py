@@ -105,17 +105,10 @@ def _snapshot_at_pose(session, pose, frame_index: int = 0):
 
     with torch.no_grad():
         # Stage II decodes the canonical Gaussians from the pose's features; Stage I ignores the pose
-        canon = session.canonical_for_pose(pose) if hasattr(session, "canonical_for_pose") else session.model.canonical()
-        transforms = session.body.bone_transforms(pose).float().to(canon.means.device)
-        posed = session.model.pose(canon, transforms)
-        f32 = lambda t: t.detach().cpu().float().numpy()
-        n = posed.means.shape[0]
-        rot = np.zeros((n, 4), np.float32)
-        rot[:, 0] = 1
-        return Snapshot(f32(posed.means), f32(canon.scales), rot, f32(canon.colors), np.ones(n, np.float32),
-                        f32(posed.normals), session.seen_flags().numpy().astype(np.uint8), space="observation",
-                        frame_index=frame_index, stage=int(getattr(session, "stage", 1) or 1),
-                        step=session.step_count)
+        canon = session.canonical_for_pose(pose)
+        posed = session.model.pose(canon, session.body.bone_transforms(pose).float().to(canon.means.device))
+        return Snapshot.from_gaussians(posed, session.seen_flags(), space="observation", frame_index=frame_index,
+                                       stage=session.stage, step=session.step_count)
 
 
 def orbit_cameras(snap, frames: int, width: int, height: int, elevation: float = 5.0, fill: float = 0.8,

@@ -46,6 +46,14 @@ class Snapshot:
         return int(self.means.shape[0])
 
     @staticmethod
+    def from_gaussians(g, visibility, **meta) -> "Snapshot":
+        """From renderable Gaussians (``PosedGaussians``: torch tensors) and per-Gaussian seen flags;
+        ``meta`` sets the other fields (space, frame_index, stage, step, metrics)."""
+        f32 = lambda t: np.asarray(t.detach().cpu().float())
+        return Snapshot(f32(g.means), f32(g.scales), f32(g.quats), f32(g.colors), f32(g.opacities), f32(g.normals),
+                        np.asarray(visibility.cpu()).astype(np.uint8), **meta)
+
+    @staticmethod
     def empty() -> "Snapshot":
         z3 = np.zeros((0, 3), np.float32)
         return Snapshot(z3, z3, np.zeros((0, 4), np.float32), z3, np.zeros(0, np.float32), z3, np.zeros(0, np.uint8))

@@ -326,21 +326,14 @@ class TrainingSession:
     @torch.no_grad()
     def make_snapshot(self, space: str = "observation", frame_index: int = 0) -> Snapshot:
         if space == "canonical":
-            canon = self.canonical_at(None)
-            means, normals = canon.means, canon.normals
+            g = self.model.splats(self.canonical_at(None))
         elif space == "observation":
-            canon = self.canonical_at(frame_index)
-            posed = self.model.pose(canon, self.frame_transforms(frame_index))
-            means, normals = posed.means, posed.normals
+            g = self.model.pose(self.canonical_at(frame_index), self.frame_transforms(frame_index))
         else:
             raise ValueError(f"snapshot space must be 'observation' or 'canonical', found {space!r}")
-        n = means.shape[0]
-        f32 = lambda t: t.detach().cpu().float().numpy()
-        rot = np.zeros((n, 4), np.float32)
-        rot[:, 0] = 1
-        return Snapshot(f32(means), f32(canon.scales), rot, f32(canon.colors), np.ones(n, np.float32), f32(normals),
-                        self.seen_flags().numpy().astype(np.uint8), space=space, frame_index=frame_index, stage=self.stage,
-                        step=self.step_count, metrics={k: v for k, v in self.latest.items() if isinstance(v, (int, float))})
+        return Snapshot.from_gaussians(g, self.seen_flags(), space=space, frame_index=frame_index, stage=self.stage,
+                                       step=self.step_count,
+                                       metrics={k: v for k, v in self.latest.items() if isinstance(v, (int, float))})
 
     def publish(self, space: str = "observation", frame_index: int = 0) -> None:
         self.snapshots.publish(self.make_snapshot(space, frame_index))
