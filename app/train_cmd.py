@@ -93,7 +93,7 @@ def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True, stag
     run_dir.mkdir(parents=True, exist_ok=True)
     with RunLock(run_dir):
         session = open_session(scene_spec, run_dir, config, progress=progress)
-        if getattr(session, "stage", 1) == 2:
+        if session.stage == 2:
             if stage == "1":
                 raise RuntimeError(f"{run_dir}: this run is already in Stage II (use --stage 2 to continue it)")
         else:
@@ -118,7 +118,7 @@ def _enter_stage2(session, run_dir: Path, stage2, allow_incomplete: bool):
     from reconstruct.stage2.config import Stage2Config
     from reconstruct.stage2.session import start_stage2
 
-    if getattr(session, "stage", 1) == 2:
+    if session.stage == 2:
         return session
     if isinstance(stage2, dict) or stage2 is None:
         stage2 = Stage2Config(**(stage2 or {}))

@@ -98,7 +98,7 @@ def screenshots(folder: str, train_s: float, run: str | None = None) -> None:
             app.push_stage2_settings(canonical_ratio=0.6)
             app.controls.update(start_stage2=True)
             st["phase"] = 1
-        elif p == 1 and getattr(s, "stage", 1) == 2 and getattr(s, "stage2_step", 0) >= 4:
+        elif p == 1 and s.stage == 2 and s.stage2_step >= 4:
             app.request_screenshot(out / "studio_stage2.png")
             st["phase"] = 4
         elif p == 4:  # a frame later: the visibility map from an unseen evaluation view, beside its ground truth

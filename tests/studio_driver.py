@@ -30,7 +30,7 @@ def state_of(app) -> dict:
     c = app.controls.get()
     snap = s.snapshots.latest()
     return {
-        "frame": app.frame_count, "fps": app.fps, "step": s.step_count, "stage": int(getattr(s, "stage", 1) or 1),
+        "frame": app.frame_count, "fps": app.fps, "step": s.step_count, "stage": s.stage,
         "num_frames": len(app.scene.frames), "mode": app.mode.value,
         "controls": {"paused": c.paused, "frame_index": c.frame_index, "space": c.space, "stage2": c.stage2,
                      "stage2_version": c.stage2_version, "novel": c.novel},

@@ -64,17 +64,16 @@ def trainer(tiny_scene, tiny_config):
 
 
 def test_stage2_start_and_settings_between_steps(trainer, stub_stage2):
-    from app.studio.trainer_thread import session_stage
 
     s1 = trainer.session
-    assert session_stage(s1) == 1
+    assert s1.stage == 1
     settings = {"canonical_ratio": 0.8, "given_view_ratio": 0.3, "visibility_threshold": 0.5, "lambda_sds": 0.2,
                 "sds_t0": 50.0, "sds_k": 20.0, "progressive": True, "prior": "builtin", "prior_path": None}
     trainer.controls.update(stage2=dict(settings), stage2_version=1)
     trainer.start()
     _wait(lambda: s1.step_count >= 2, what="Stage I steps")
     trainer.controls.update(start_stage2=True)
-    _wait(lambda: session_stage(trainer.session) == 2, what="Stage II")
+    _wait(lambda: trainer.session.stage == 2, what="Stage II")
     s2 = trainer.session
     assert s2.from_session is s1 and s2.model is s1.model
     cfg = s2.stage2
@@ -110,7 +109,7 @@ def test_stage2_missing_module_is_a_message(trainer, monkeypatch):
     s = trainer.session
     n = s.step_count
     _wait(lambda: s.step_count > n, what="Stage I going on")
-    assert getattr(trainer.session, "stage", 1) == 1 and trainer.error is None
+    assert trainer.session.stage == 1 and trainer.error is None
 
 
 def test_frozen_copy_between_steps_does_not_follow_training(trainer):

@@ -15,7 +15,6 @@ from imgui_bundle import imgui, implot
 from renderer.render_modes import RenderMode
 
 from .export_job import FORMATS, KIND_LABELS, KINDS
-from .trainer_thread import session_stage
 
 MODES = list(RenderMode)
 PANEL_WIDTH = 320
@@ -82,7 +81,7 @@ def _history_series(app):
 def training_panel(app) -> None:
     t, s = app.trainer, app.session
     c = app.controls.get()
-    stage = session_stage(s)
+    stage = s.stage
     status = "error" if t.error else "finished" if s.done else "paused" if c.paused else "training"
     imgui.text(f"Stage {'I' * stage}  -  {status}")
     if stage >= 2:
@@ -148,7 +147,7 @@ def sds_curve(settings: dict, steps: int, epoch_steps: float | None = None, poin
 def stage2_panel(app) -> None:
     s, t = app.session, app.trainer
     st = app.stage2_settings
-    stage = session_stage(s)
+    stage = s.stage
     changed = False
     live = getattr(s, "stage2", None)
     if stage < 2:

@@ -68,11 +68,6 @@ class HistoryRow(NamedTuple):
     stage: int = 1
 
 
-def session_stage(session) -> int:
-    """1 for a Stage I session (which has no ``stage`` attribute), else its ``stage``."""
-    return int(getattr(session, "stage", 1) or 1)
-
-
 STAGE2_MODULE = "reconstruct.stage2.session"
 STAGE2_SETTINGS = ("given_view_ratio", "canonical_ratio", "lambda_sds", "sds_t0", "sds_k", "progressive",
                    "visibility_threshold", "prior", "prior_path")
@@ -189,7 +184,7 @@ class TrainerThread:
         lat = s.latest
         nan = float("nan")
         row = HistoryRow(float(s.elapsed), int(s.step_count), float(lat.get("loss", nan)),
-                         float(lat.get("seen_psnr", nan)), float(lat.get("unseen_psnr", nan)), session_stage(s))
+                         float(lat.get("seen_psnr", nan)), float(lat.get("unseen_psnr", nan)), s.stage)
         with self._hist_lock:
             self._history.append(row)
 
@@ -224,7 +219,7 @@ class TrainerThread:
 
     def _start_stage2(self, c: Controls) -> None:
         s = self.session
-        if session_stage(s) >= 2:
+        if s.stage >= 2:
             self.stage2_message = "Stage II is already running"
             return
         try:
@@ -274,7 +269,7 @@ class TrainerThread:
         self._drain_calls()
         if self.controls.take("start_stage2"):
             self._start_stage2(c)
-        if session_stage(self.session) >= 2 and c.stage2_version != self._stage2_applied:
+        if self.session.stage >= 2 and c.stage2_version != self._stage2_applied:
             self._apply_stage2_settings(c)
         return c
 

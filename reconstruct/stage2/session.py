@@ -148,7 +148,7 @@ class Stage2Session(TrainingSession):
     def from_stage1(cls, session: TrainingSession, stage2: Stage2Config | None = None) -> "Stage2Session":
         """Take over a Stage I session: same scene, settings, run folder, weights, seen flags and
         clock. The Stage I checkpoint is kept as ``checkpoint_stage1.pt`` in the run folder."""
-        if getattr(session, "stage", 1) != 1:
+        if session.stage != 1:
             raise Stage2Error("Stage II starts from a Stage I session")
         if session.step_count == 0:
             raise Stage2Error("Stage II needs a trained Stage I avatar; this Stage I session has taken no step")
@@ -459,7 +459,7 @@ class Stage2Session(TrainingSession):
 
 def start_stage2(session: TrainingSession, stage2: Stage2Config, *, allow_incomplete: bool = False) -> Stage2Session:
     """Checks that ``session`` is a finished Stage I run and starts Stage II on it."""
-    if getattr(session, "stage", 1) == 2:
+    if session.stage == 2:
         return session
     if not session.done and not allow_incomplete:
         cfg = session.config
