@@ -117,27 +117,19 @@ def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True, stag
 def _enter_stage2(session, run_dir: Path, stage2, allow_incomplete: bool):
     from reconstruct.stage2.config import Stage2Config
     from reconstruct.stage2.session import start_stage2
+    from reconstruct.train.session import update_run_info
 
     if session.stage == 2:
         return session
     if isinstance(stage2, dict) or stage2 is None:
         stage2 = Stage2Config(**(stage2 or {}))
     session = start_stage2(session, stage2, allow_incomplete=allow_incomplete)
-    _write_stage2_info(run_dir, session)
+    update_run_info(run_dir, {"stage": 2, "stage2": session.stage2.to_dict(), "stage1_step": session.stage1_step})
     s2 = session.stage2
     print(f"Stage II: prior {session.prior.describe()}; {session.latest.get('unseen_views', 0)} unseen of "
           f"{len(session.selected_views)} candidate views (threshold {s2.visibility_threshold:g}); "
           f"{s2.iters} steps" + (f" or {s2.minutes:g} min" if s2.minutes else ""), file=sys.stderr)
     return session
-
-
-def _write_stage2_info(run_dir: Path, session) -> None:
-    info_path = run_dir / "run.json"
-    info = json.loads(info_path.read_text()) if info_path.exists() else {}
-    info.update({"stage": 2, "stage2": session.stage2.to_dict(), "stage1_step": session.stage1_step})
-    tmp = run_dir / ".run.json.tmp"
-    tmp.write_text(json.dumps(info, indent=1))
-    tmp.replace(info_path)
 
 
 def train_stage2(run_dir: Path, stage2_overrides: dict | None = None, *, allow_incomplete: bool = False,
@@ -163,12 +155,11 @@ def train_stage2(run_dir: Path, stage2_overrides: dict | None = None, *, allow_i
     with RunLock(run_dir):
         state = load_checkpoint(run_dir / CHECKPOINT_NAME)
         if state.get("stage", 1) == 2:
-            cfg2 = Stage2Config.from_dict({**state["stage2"]["config"], **overrides})
-            session = Stage2Session.resume(scene, run_dir, stage2=cfg2)
+            session = Stage2Session.from_state(scene, run_dir, state, stage2=overrides)
             session.log.truncate_after(session.step_count)
             print(f"resuming Stage II of {run_dir} at Stage II step {session.stage2_step}", file=sys.stderr)
         else:
-            s1 = TrainingSession.resume(scene, run_dir)
+            s1 = TrainingSession.from_state(scene, run_dir, state)
             s1.log.truncate_after(s1.step_count)
             session = _enter_stage2(s1, run_dir, Stage2Config(**overrides), allow_incomplete)
         _run(session, "stage II", progress)

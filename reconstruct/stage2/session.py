@@ -33,7 +33,7 @@ from ..camera import Camera
 from ..priors.base import CameraDelta, GuidanceInput
 from ..priors.propagated import build_prior
 from ..train import losses as L
-from ..train.checkpoint import CheckpointError, load_checkpoint
+from ..train.checkpoint import CheckpointError
 from ..train.config import Stage1Config
 from ..train.render import crop_camera, render_avatar
 from ..train.session import CHECKPOINT_NAME, TrainingSession, gaussians_finite
@@ -444,16 +444,16 @@ class Stage2Session(TrainingSession):
             self.spaces.append(SpaceViews(s["frame"], s["reference_azimuth"], s["reference_elevation"], target, views))
 
     @classmethod
-    def resume(cls, scene, run_dir, config: Stage1Config | None = None,
-               stage2: Stage2Config | None = None) -> "Stage2Session":
-        run_dir = Path(run_dir)
-        state = load_checkpoint(run_dir / CHECKPOINT_NAME)
+    def from_state(cls, scene, run_dir, state: dict, config: Stage1Config | None = None,
+                   stage2: Stage2Config | dict | None = None) -> "Stage2Session":
+        """``stage2``: the Stage II settings, or a dict of settings that replace the checkpoint's."""
         if state.get("stage", 1) != 2:
-            raise CheckpointError(f"{run_dir / CHECKPOINT_NAME}: a Stage I checkpoint, not Stage II")
+            raise CheckpointError(f"{Path(run_dir) / CHECKPOINT_NAME}: a Stage I checkpoint, not Stage II")
         cfg = config or Stage1Config.from_dict(state["config"])
-        s2cfg = stage2 or Stage2Config.from_dict(state["stage2"]["config"])
-        session = cls(scene, cfg, s2cfg, run_dir, scene_spec=state.get("scene_spec"))
-        session.load_state(state, str(run_dir / CHECKPOINT_NAME))
+        if not isinstance(stage2, Stage2Config):
+            stage2 = Stage2Config.from_dict({**state["stage2"]["config"], **(stage2 or {})})
+        session = cls(scene, cfg, stage2, run_dir, scene_spec=state.get("scene_spec"))
+        session.load_state(state, str(Path(run_dir) / CHECKPOINT_NAME))
         return session
 
 

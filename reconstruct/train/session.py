@@ -17,6 +17,7 @@ from ..avatar.model import AvatarModel
 from ..body.pose import BodyPose
 from ..data.scene import Scene
 from ..metrics import load_lpips_or_none
+from ..atomic import atomic_output
 from ..snapshot import Snapshot, SnapshotBox
 from . import losses as L
 from .checkpoint import CheckpointError, load_checkpoint, save_checkpoint
@@ -401,21 +402,36 @@ class TrainingSession:
 
     @classmethod
     def resume(cls, scene: Scene, run_dir: str | Path, config: Stage1Config | None = None) -> "TrainingSession":
+        """The session of ``run_dir``'s checkpoint (read once): Stage I, or Stage II when the run is
+        in Stage II."""
         run_dir = Path(run_dir)
         state = load_checkpoint(run_dir / CHECKPOINT_NAME)
         if state.get("stage", 1) == 2 and cls.stage == 1:
             from ..stage2.session import Stage2Session
 
-            return Stage2Session.resume(scene, run_dir, config)
+            cls = Stage2Session
+        return cls.from_state(scene, run_dir, state, config)
+
+    @classmethod
+    def from_state(cls, scene: Scene, run_dir: str | Path, state: dict,
+                   config: Stage1Config | None = None) -> "TrainingSession":
+        """A session on ``run_dir`` restored from its loaded checkpoint ``state``; ``config``
+        replaces the checkpoint's settings when given."""
         cfg = config or Stage1Config.from_dict(state["config"])
         session = cls(scene, cfg, run_dir, scene_spec=state.get("scene_spec"))
-        session.load_state(state, str(run_dir / CHECKPOINT_NAME))
+        session.load_state(state, str(Path(run_dir) / CHECKPOINT_NAME))
         return session
 
 
 def write_run_info(run_dir: Path, scene_spec: str, config: Stage1Config) -> None:
-    info = {"scene": scene_spec, "stage": 1, "config": config.to_dict(), "python": sys.version.split()[0],
-            "torch": torch.__version__}
-    tmp = run_dir / ".run.json.tmp"
-    tmp.write_text(json.dumps(info, indent=1))
-    tmp.replace(run_dir / "run.json")
+    update_run_info(run_dir, {"scene": scene_spec, "stage": 1, "config": config.to_dict(),
+                              "python": sys.version.split()[0], "torch": torch.__version__})
+
+
+def update_run_info(run_dir: Path, fields: dict) -> None:
+    """Sets ``fields`` in the run folder's ``run.json`` (written atomically)."""
+    path = Path(run_dir) / "run.json"
+    info = json.loads(path.read_text()) if path.exists() else {}
+    info.update(fields)
+    with atomic_output(path) as tmp:
+        tmp.write_text(json.dumps(info, indent=1))
