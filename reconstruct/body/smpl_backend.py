@@ -6,7 +6,8 @@ Files (looked for, in order, in ``smpl_dir`` given explicitly, ``$WONDERHUMAN_SM
 - the model: ``SMPL_{NEUTRAL,FEMALE,MALE}.pkl|.npz`` or the official release names
   (``basicmodel_neutral_lbs_10_207_0_v1.1.0.pkl``, ``basicModel_f_lbs_10_207_0_v1.0.0.pkl``, ...).
   Official ``.pkl`` files hold chumpy objects; they are read without chumpy by a restricted
-  unpickler that only admits numpy, scipy.sparse and a stand-in for chumpy's array classes.
+  unpickler (``reconstruct.safe_pickle``'s plain-data one, extended) that only admits numpy,
+  scipy.sparse matrices and a stand-in for chumpy's array classes: a crafted file cannot run code.
 - the UV layout: ``smpl_uv.obj`` (``v``/``vt``/``f a/ta b/tb c/tc``, the SMPL mesh's vertex order).
 
 Frames: SMPL's own space is Y up, facing +Z. The project's body space is Z up, facing -Y
@@ -23,17 +24,16 @@ Shape blend shapes (``betas``) are applied once, to make the rest mesh.
 
 from __future__ import annotations
 
-import io
+import copyreg
 import math
 import os
-import pickle
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from ..paths import cache_dir
+from ..safe_pickle import RestrictedUnpickler, SafeLoadError, restricted_loads
 from .base import BodyModel
 from .pose import BodyPose, axis_angle_to_matrix
 
@@ -132,22 +132,32 @@ class _ChumpyStandIn:
         raise ValueError(f"a chumpy object without an array value (fields {sorted(self.__dict__)})")
 
 
-class _ModelUnpickler(pickle.Unpickler):
-    """Admits only what SMPL model pickles need; chumpy classes become ``_ChumpyStandIn``."""
+_SPARSE_CLASSES = frozenset(f"{fmt}_{kind}" for fmt in ("csc", "csr", "coo", "bsr", "dia", "dok", "lil")
+                            for kind in ("matrix", "array"))
 
-    _ALLOWED = {("builtins", n) for n in ("set", "frozenset", "slice", "complex", "object", "list", "dict", "tuple")}
-    _ALLOWED |= {("copy_reg", "_reconstructor"), ("copyreg", "_reconstructor"),
-                 ("__builtin__", "object"), ("__builtin__", "set"), ("collections", "OrderedDict"),
-                 ("_codecs", "encode")}
 
-    def find_class(self, module: str, name: str):
+class _ModelUnpickler(RestrictedUnpickler):
+    """The plain-data unpickler of ``reconstruct.safe_pickle`` extended with what SMPL model pickles
+    need: scipy.sparse matrix classes (any ``scipy.sparse.*`` module spelling, e.g. the official
+    files' ``scipy.sparse.csc.csc_matrix``, resolved to the class in ``scipy.sparse``), chumpy's
+    classes (become ``_ChumpyStandIn``), and ``copyreg._reconstructor`` / ``object`` with which
+    Python 2 pickled those objects. Everything else is refused (``RefusedGlobalError``)."""
+
+    allowed = "only numpy, scipy.sparse or chumpy data (an SMPL model's arrays)"
+
+    def resolve(self, module: str, name: str):
         if module.split(".")[0] == "chumpy":
             return _ChumpyStandIn
-        if (module, name) in self._ALLOWED:
-            return super().find_class({"copy_reg": "copyreg", "__builtin__": "builtins"}.get(module, module), name)
-        if module.split(".")[0] == "numpy" or module.startswith("scipy.sparse"):
-            return super().find_class(module, name)
-        raise pickle.UnpicklingError(f"refusing to load {module}.{name} (not numpy, scipy.sparse or chumpy)")
+        if (module, name) == ("copyreg", "_reconstructor"):
+            return copyreg._reconstructor
+        if (module, name) == ("builtins", "object"):
+            return object
+        if (module == "scipy.sparse" or module.startswith("scipy.sparse.")) and name in _SPARSE_CLASSES:
+            import scipy.sparse
+
+            cls = getattr(scipy.sparse, name, None)
+            return cls if isinstance(cls, type) else None
+        return super().resolve(module, name)
 
 
 def _to_array(value, key: str, path: Path) -> np.ndarray:
@@ -171,9 +181,11 @@ def load_model_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
             with np.load(path, allow_pickle=False) as z:
                 raw = {k: z[k] for k in z.files}
         else:
-            data = path.read_bytes()
-            raw = _ModelUnpickler(io.BytesIO(data), encoding="latin1").load()
-    except (pickle.UnpicklingError, ValueError, EOFError, OSError, AttributeError, ImportError) as exc:
+            raw = restricted_loads(path.read_bytes(), source=path, unpickler=_ModelUnpickler,
+                                   what="a pickled SMPL model (a dict of arrays)")
+    except SafeLoadError as exc:
+        raise SMPLFilesError(f"{exc} (reading an SMPL model file)") from exc
+    except (ValueError, EOFError, OSError) as exc:
         raise SMPLFilesError(f"{path}: cannot be read as an SMPL model file: {exc}") from exc
     if not isinstance(raw, dict):
         raise SMPLFilesError(f"{path}: expected a dict of arrays, found {type(raw).__name__}")

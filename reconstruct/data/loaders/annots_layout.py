@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ...body.smpl_backend import smpl_body_pose, smpl_body_spec
+from ...safe_pickle import SafeLoadError, load_npy_object
 from ..scene import Scene
 from .common import (LoaderError, Protocol, check_size, finish_frame, frame_number, make_eval_view, opencv_camera,
                      read_mask, read_rgb, smpl_shape_error, undistort, warn_skipped, azimuth_about_body, wrap_deg)
@@ -33,18 +34,25 @@ def read_annots(folder: Path) -> dict:
     if not path.is_file():
         raise LoaderError(f"{path}: missing (camera parameters and per-frame image lists of a ZJU-MoCap/MonoCap "
                           f"folder: a dict with 'cams' {{K, D, R, T}} and 'ims')")
-    try:
-        annots = np.load(path, allow_pickle=True)
-        annots = annots.item() if annots.dtype == object and annots.shape == () else annots
-    except Exception as exc:
-        raise LoaderError(f"{path}: cannot be read as a numpy file: {exc}") from exc
+    try:  # a pickled dict: read as plain data only (a crafted file must not run code)
+        annots = load_npy_object(path)
+    except SafeLoadError as exc:
+        raise LoaderError(f"{exc} (reading the camera parameters and image lists of a ZJU-MoCap/MonoCap "
+                          f"folder)") from exc
     if not isinstance(annots, dict) or "cams" not in annots or "ims" not in annots:
         found = sorted(annots) if isinstance(annots, dict) else type(annots).__name__
         raise LoaderError(f"{path}: expected a dict with keys 'cams' and 'ims', found {found}")
     cams = annots["cams"]
+    if not isinstance(cams, dict):
+        raise LoaderError(f"{path}: 'cams' should be a dict {{K, D, R, T}}, found {type(cams).__name__}")
     missing = [k for k in ("K", "R", "T") if k not in cams]
     if missing:
         raise LoaderError(f"{path}: 'cams' is missing {missing}; found keys {sorted(cams)}")
+    for key in ("K", "R", "T", "D", "ims"):
+        value = annots["ims"] if key == "ims" else cams.get(key, [])
+        if not isinstance(value, (list, tuple, np.ndarray)):
+            raise LoaderError(f"{path}: {key!r} should be a list (one entry per {'frame' if key == 'ims' else 'camera'}), "
+                              f"found {type(value).__name__}")
     n = len(cams["K"])
     for key in ("K", "R", "T", "D"):
         if key in cams and len(cams[key]) != n:
@@ -86,17 +94,19 @@ def params_candidates(folder: Path, params_dir: str, n: int) -> list[Path]:
 
 
 def read_params(path: Path):
-    try:
-        d = np.load(path, allow_pickle=True)
-        d = d.item() if d.dtype == object and d.shape == () else d
-    except Exception as exc:
-        raise LoaderError(f"{path}: cannot be read as SMPL parameters: {exc}") from exc
+    try:  # a pickled dict: read as plain data only (a crafted file must not run code)
+        d = load_npy_object(path)
+    except SafeLoadError as exc:
+        raise LoaderError(f"{exc} (reading EasyMocap SMPL parameters {{poses, Rh, Th, shapes}})") from exc
     if not isinstance(d, dict):
         raise LoaderError(f"{path}: expected a dict {{poses, Rh, Th, shapes}}, found {type(d).__name__}")
     missing = [k for k in ("poses", "Rh", "Th") if k not in d]
     if missing:
         raise LoaderError(f"{path}: missing SMPL parameters {missing}; found keys {sorted(d)}")
-    poses, Rh, Th = (np.asarray(d[k], np.float64) for k in ("poses", "Rh", "Th"))
+    try:
+        poses, Rh, Th = (np.asarray(d[k], np.float64) for k in ("poses", "Rh", "Th"))
+    except (TypeError, ValueError) as exc:
+        raise LoaderError(f"{path}: 'poses', 'Rh' and 'Th' should be arrays of numbers: {exc}") from exc
     if poses.size != 72:
         raise smpl_shape_error(path, "poses", "(1, 72): SMPL's 24 joints x 3 axis-angle values", poses)
     for key, v in (("Rh", Rh), ("Th", Th)):
