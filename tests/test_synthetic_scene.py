@@ -1,12 +1,24 @@
+import hashlib
 import json
 
 import numpy as np
 import pytest
 
 from reconstruct.body.parts import PART_INDEX
-from reconstruct.data.load import load_scene, parse_synthetic_spec
+from reconstruct.data.load import (
+    DEFAULT_SCENE,
+    canonical_scene_spec,
+    load_scene,
+    parse_synthetic_spec,
+    recorded_scene_spec,
+    synthetic_cache_key,
+)
 from reconstruct.data.scene_io import SceneFormatError, read_scene, write_scene
-from reconstruct.data.synthetic.generator import SyntheticConfig, build_synthetic_scene, check_body_in_view
+from reconstruct.data.synthetic.generator import (
+    SyntheticConfig,
+    build_synthetic_scene,
+    check_body_in_view,
+)
 from reconstruct.data.synthetic.motion import walk_in_place
 
 
@@ -33,16 +45,17 @@ def test_back_view_differs_from_front_view(small_scene):
     front = next(v for v in small_scene.eval_views if v.azimuth_deg == 0)
     back = next(v for v in small_scene.eval_views if v.azimuth_deg == 180)
     m = (front.mask > 0.99) & (back.mask[:, ::-1] > 0.99)
-    # mirror the back view so the silhouettes roughly overlap; clothing differs front and back
+    # mirror the back view so the silhouettes roughly overlap; garments share their base colour front
+    # and back, but face/hair, the emblem and the back-only details differ
     diff = np.abs(front.image[m] - back.image[:, ::-1][m]).mean()
-    assert diff > 0.08, diff
+    assert diff > 0.03, diff
 
 
 def test_texture_patterns_differ_front_and_back(anny_body):
     from reconstruct.body.uv_map import build_uv_map
     from reconstruct.data.synthetic.clothing import paint_texture
 
-    tex = paint_texture(anny_body, np.random.default_rng(0), 256)
+    tex = paint_texture(anny_body, np.random.default_rng(0), 256, clothing="independent")
     uv = build_uv_map(anny_body, 256)
     colors = tex[uv.texel_rc[:, 0], uv.texel_rc[:, 1]].astype(float)
     torso = (uv.parts == PART_INDEX["torso"]) & (uv.positions[:, 2].numpy() > 0.15)
@@ -63,6 +76,7 @@ def test_synthetic_is_deterministic_and_seeded():
 
 def test_motion_within_human_limits():
     import anny  # noqa: F401  (labels come from the model)
+
     from reconstruct.body.anny_backend import load_anny_model
 
     labels = list(load_anny_model().bone_labels)
@@ -89,6 +103,16 @@ def test_scene_folder_roundtrip(small_scene, tmp_path):
     assert again.body == small_scene.body
     assert [v.seen for v in again.eval_views] == [v.seen for v in small_scene.eval_views]
     assert np.array_equal(again.meta["texture"], small_scene.meta["texture"])
+    assert again.name == small_scene.name == "synthetic-seed3-garment"
+    # the front-leak information of the unseen views comes back as it was in memory
+    assert sum(v.front_leak is not None for v in again.eval_views) == sum(not v.seen for v in again.eval_views) > 0
+    for a, b in zip(small_scene.eval_views, again.eval_views):
+        assert (a.front_leak is None) == (b.front_leak is None)
+        if a.front_leak is not None:
+            assert a.front_leak.names == b.front_leak.names
+            assert np.array_equal(a.front_leak.regions, b.front_leak.regions)
+            for ca, cb in zip(a.front_leak.colors, b.front_leak.colors):
+                assert np.abs(ca - cb).max() < 1e-6
     # rewriting replaces the folder atomically and leaves no temporary folders behind
     write_scene(again, folder)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
@@ -152,3 +176,142 @@ def test_synthetic_cache_roundtrip(monkeypatch, tmp_path):
     assert len(list((tmp_path / "scenes").iterdir())) == 1
     b = load_scene(spec, progress=False)  # read back from the cache
     assert np.array_equal(a.frames[0].image, b.frames[0].image)
+
+
+# ----- clothing models ---------------------------------------------------------------------------
+
+# Checksums of a tiny scene made by the generator BEFORE the clothing models existed (every back an
+# independent random colour): ``clothing=independent`` must reproduce it exactly.
+ORIGINAL_SPEC = "synthetic:seed=1,frames=3,size=48,azimuths=8,eval_frames=1,texture_size=128"
+ORIGINAL_PIXELS_SHA256 = "b326e5fc5f5537b213d9d98d4eb78d4613fcc849043b574d009c62576baef9bf"
+ORIGINAL_TEXTURE_SHA256 = "f7f661c9e637377cb6299b41704618f9193a33ddfa783526a7e1feda12cfceb4"
+# synthetic_cache_key of "synthetic:seed=2,frames=2,size=48,azimuths=8,eval_frames=1,texture_size=128"
+# before the clothing models existed
+ORIGINAL_CACHE_KEY = "0257ba69cb18667e"
+
+
+def _pixels_sha256(scene) -> str:
+    h = hashlib.sha256()
+    for f in scene.frames:
+        h.update(np.ascontiguousarray(f.image).tobytes())
+        h.update(f.mask.tobytes())
+    for v in scene.eval_views:
+        h.update(np.ascontiguousarray(v.image).tobytes())
+        h.update(v.mask.tobytes())
+    return h.hexdigest()
+
+
+@pytest.fixture(scope="module")
+def both_clothings():
+    return {c: build_synthetic_scene(parse_synthetic_spec(f"{ORIGINAL_SPEC},clothing={c}"), progress=False)
+            for c in ("independent", "garment")}
+
+
+def test_independent_clothing_reproduces_the_original_scene(both_clothings):
+    old = both_clothings["independent"]
+    tex = np.ascontiguousarray(old.meta["texture"])
+    assert hashlib.sha256(tex.tobytes()).hexdigest() == ORIGINAL_TEXTURE_SHA256
+    assert _pixels_sha256(old) == ORIGINAL_PIXELS_SHA256
+    assert old.name == "synthetic-seed1"  # the name old checkpoints recorded
+
+
+def test_garment_has_the_same_body_and_motion(both_clothings):
+    old, new = both_clothings["independent"], both_clothings["garment"]
+    assert new.body == old.body and new.name == "synthetic-seed1-garment"
+    for a, b in zip(old.frames, new.frames):
+        assert np.array_equal(a.pose.joint_rotations, b.pose.joint_rotations)
+        assert np.array_equal(a.mask, b.mask)
+    assert not np.array_equal(old.meta["texture"], new.meta["texture"])
+    assert new.meta["clothing"]["model"] == "garment"
+
+
+def _painted(seed: int, clothing: str, size: int = 256):
+    from reconstruct.body.anny_backend import random_phenotype
+    from reconstruct.body.uv_map import build_uv_map
+    from reconstruct.data.scene import BodySpec
+    from reconstruct.data.synthetic.clothing import paint_clothing
+
+    rng = np.random.default_rng(seed)
+    body = BodySpec.anny(random_phenotype(rng), 5.0).build()
+    return body, build_uv_map(body, size), paint_clothing(body, rng, size, clothing)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_garment_backs_continue_the_fronts(seed):
+    from reconstruct.data.synthetic.clothing import mirror_partners
+
+    _, uv, garment = _painted(seed, "garment")
+    _, _, independent = _painted(seed, "independent")
+    partner = mirror_partners(uv)
+    ny = uv.normals[:, 1].numpy()
+    clothed = np.isin(uv.parts, [PART_INDEX[p] for p in ("torso", "thigh.L", "thigh.R", "shin.L", "shin.R")])
+    back = clothed & (partner >= 0) & (ny > 0.3)
+    dist = lambda col: np.linalg.norm(col[back] - col[partner[back]], axis=1)
+    # a back texel has the colour of the front texel it continues (up to the back-only details) ...
+    assert np.median(dist(garment.texel_colors)) < 0.05
+    assert np.median(dist(independent.texel_colors)) > 0.08  # ... which the original (random) backs did not
+    # the front-only emblem is nowhere on the back
+    emblem = garment.leak_colors["emblem"][0]
+    torso_back = (uv.parts == PART_INDEX["torso"]) & (ny > 0.3)
+    assert (np.linalg.norm(garment.texel_colors[torso_back] - emblem, axis=1) < 0.15).mean() < 0.002
+    # the emblem is on the front
+    torso_front = (uv.parts == PART_INDEX["torso"]) & (ny < -0.3)
+    assert (np.linalg.norm(garment.texel_colors[torso_front] - emblem, axis=1) < 0.05).sum() > 20
+    # the hair at the back of the head is the hair of the crown
+    head = uv.parts == PART_INDEX["head"]
+    z = uv.positions[:, 2].numpy()
+    top = z[head].max()
+    crown = np.median(garment.texel_colors[head & (z > top - 0.02)], axis=0)
+    back_of_head = head & (ny > 0.5) & (z > top - 0.1)
+    assert np.median(np.linalg.norm(garment.texel_colors[back_of_head] - crown, axis=1)) < 0.02
+    # and the face (skin) only in front: its mirrored region on the back of the head is not skin
+    skin = garment.leak_colors["face"][0]
+    assert garment.leak_texels["face"].sum() > 50
+    assert (np.linalg.norm(garment.texel_colors[garment.leak_texels["face"]] - skin, axis=1) > 0.2).all()
+
+
+def test_clothing_spec_and_recorded_specs():
+    assert parse_synthetic_spec("synthetic:seed=4").clothing == "garment"
+    assert parse_synthetic_spec("synthetic:seed=4,clothing=independent").clothing == "independent"
+    with pytest.raises(ValueError, match="clothing must be one of garment, independent"):
+        parse_synthetic_spec("synthetic:clothing=random")
+    # runs record the clothing model explicitly ...
+    assert canonical_scene_spec(DEFAULT_SCENE) == "synthetic:seed=0,clothing=garment"
+    assert canonical_scene_spec("synthetic:") == "synthetic:clothing=garment"
+    assert canonical_scene_spec("synthetic:seed=1,clothing=independent") == "synthetic:seed=1,clothing=independent"
+    assert canonical_scene_spec("/data/scene") == "/data/scene"
+    # ... and a recorded spec without one was recorded before garments existed: independent backs
+    assert parse_synthetic_spec(recorded_scene_spec("synthetic:seed=0")).clothing == "independent"
+    assert recorded_scene_spec("synthetic:seed=0,clothing=garment") == "synthetic:seed=0,clothing=garment"
+    assert recorded_scene_spec("zju:/data/377,frames=0:3") == "zju:/data/377,frames=0:3"
+    assert recorded_scene_spec(canonical_scene_spec("synthetic:seed=5")) == "synthetic:seed=5,clothing=garment"
+
+
+def test_cache_keys():
+    spec = "synthetic:seed=2,frames=2,size=48,azimuths=8,eval_frames=1,texture_size=128"
+    # the original clothes keep their cache folder; garments get their own
+    assert synthetic_cache_key(parse_synthetic_spec(spec + ",clothing=independent")) == ORIGINAL_CACHE_KEY
+    assert synthetic_cache_key(parse_synthetic_spec(spec)) != ORIGINAL_CACHE_KEY
+
+
+def test_old_cache_folders_get_front_leak_information(monkeypatch, tmp_path):
+    monkeypatch.setenv("WONDERHUMAN_CACHE_DIR", str(tmp_path))
+    spec = "synthetic:seed=2,frames=2,size=48,azimuths=8,eval_frames=1,texture_size=128,clothing=independent"
+    a = load_scene(spec, progress=False)
+    (folder,) = (tmp_path / "scenes").iterdir()
+    assert folder.name == f"synthetic-seed2-{ORIGINAL_CACHE_KEY}"
+    # make it look like a folder written before scenes carried front-leak information
+    doc = json.loads((folder / "scene.json").read_text())
+    for e in doc["eval_views"]:
+        (folder / e.pop("front_leak")["regions"]).unlink() if "front_leak" in e else None
+    doc["meta"].pop("front_leak")
+    (folder / "scene.json").write_text(json.dumps(doc))
+    old = read_scene(folder)
+    assert all(v.front_leak is None for v in old.eval_views)  # old folders stay readable
+    b = load_scene(spec, progress=False)
+    assert all((v.front_leak is None) == v.seen for v in b.eval_views)
+    for va, vb in zip(a.eval_views, b.eval_views):
+        assert np.array_equal(va.image, vb.image)
+        if va.front_leak is not None:
+            assert np.array_equal(va.front_leak.regions, vb.front_leak.regions)
+    assert all((v.front_leak is None) == v.seen for v in read_scene(folder).eval_views)  # and written back

@@ -84,6 +84,7 @@ class EvalView:
     normal: np.ndarray | None
     seen: bool
     azimuth_deg: float
+    front_leak: object | None = None  # reconstruct.metrics.front_leak.FrontLeakInfo (unseen views of synthetic scenes)
 
 
 @dataclass

@@ -4,6 +4,7 @@
     SCENE/poses.npz           joint_rotations (T,J,3), global_orient (T,3), transl (T,3), float64
     SCENE/frames/{rgb,mask,normal}/NNNNNN.png
     SCENE/eval/CAMERA/{rgb,mask,normal}_NNNNNN.png
+    SCENE/eval/CAMERA/leak_NNNNNN.png   (optional: front-leak regions, see reconstruct.metrics.front_leak)
     SCENE/texture.png         (synthetic scenes: the ground-truth albedo atlas)
 
 Images are 8-bit RGB over a black background; masks 8-bit gray coverage; normal maps store
@@ -58,6 +59,36 @@ def _json_safe(value):
     return value
 
 
+def _write_front_leak(info, folder: Path, rel: str) -> dict:
+    """The regions as one 8-bit RGB image (channel k: region k's coverage; at most 3 regions)."""
+    regions = np.asarray(info.regions, np.float32)
+    K = regions.shape[-1]
+    if K > 3:
+        raise ValueError(f"front-leak information with {K} regions: a scene folder stores at most 3")
+    img = np.zeros(regions.shape[:2] + (3,), np.float32)
+    img[..., :K] = regions
+    iio.imwrite(folder / rel, _to_u8(img))
+    return {"regions": rel, "details": [{"name": n, "colors": np.asarray(c, float).round(6).tolist()}
+                                        for n, c in zip(info.names, info.colors)]}
+
+
+def _read_front_leak(entry: dict, folder: Path, shape: tuple[int, int], path: Path, j: int):
+    from ..metrics.front_leak import FrontLeakInfo
+
+    what = f"evaluation view {j} front-leak regions"
+    try:
+        details = list(entry["details"])
+        names = [str(d["name"]) for d in details]
+        colors = [np.asarray(d["colors"], np.float64).reshape(-1, 3) for d in details]
+        rel = entry["regions"]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise SceneFormatError(f"{path}: evaluation view {j}: bad 'front_leak' entry ({exc!r})") from exc
+    if not 1 <= len(details) <= 3:
+        raise SceneFormatError(f"{path}: evaluation view {j}: 'front_leak' needs 1 to 3 details, found {len(details)}")
+    regions = _read_image(folder / rel, shape, what, 3)[..., :len(details)]
+    return FrontLeakInfo(tuple(names), regions, tuple(colors))
+
+
 def write_scene(scene: Scene, folder: str | os.PathLike) -> Path:
     """Write ``scene`` to ``folder`` atomically: into a temporary sibling, then renamed over it."""
     folder = Path(folder)
@@ -96,6 +127,8 @@ def write_scene(scene: Scene, folder: str | os.PathLike) -> Path:
                     rel = f"eval/{name}/{ {'image': 'rgb', 'mask': 'mask', 'normal': 'normal'}[key]}_{v.frame_index:06d}.png"
                     iio.imwrite(tmp / rel, img if img.dtype == np.uint8 else _to_u8(img))
                     entry[key] = rel
+            if getattr(v, "front_leak", None) is not None:
+                entry["front_leak"] = _write_front_leak(v.front_leak, tmp, f"eval/{name}/leak_{v.frame_index:06d}.png")
             views.append(entry)
         poses = [f.pose for f in scene.frames]
         np.savez(tmp / "poses.npz",
@@ -214,8 +247,9 @@ def read_scene(folder: str | os.PathLike) -> Scene:
         vmask = _read_image(folder / e["mask"], shape, f"evaluation view {j} mask", 1)
         vnormal = (_decode_normals(_read_image(folder / e["normal"], shape, f"evaluation view {j} normal map", 3), vmask)
                    if e.get("normal") else None)
+        leak = _read_front_leak(e["front_leak"], folder, shape, path, j) if e.get("front_leak") else None
         views.append(EvalView(cam, fi, _read_image(folder / e["image"], shape, f"evaluation view {j} image", 3),
-                              vmask, vnormal, bool(e.get("seen", False)), float(e.get("azimuth_deg", 0.0))))
+                              vmask, vnormal, bool(e.get("seen", False)), float(e.get("azimuth_deg", 0.0)), leak))
     meta = dict(doc.get("meta", {}))
     if meta.get("texture"):
         tex_path = folder / meta["texture"]

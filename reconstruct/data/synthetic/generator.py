@@ -1,5 +1,11 @@
 """The synthetic benchmark scene: an Anny body in painted clothes walking in place in front of one
-camera, with evaluation cameras all around (ground truth for the views the video never saw)."""
+camera, with evaluation cameras all around (ground truth for the views the video never saw).
+
+The clothing model (``SyntheticConfig.clothing``, see clothing.py) is ``garment`` by default
+(backs inferable from fronts) or ``independent`` (the original scene: random backs; the same
+images as before for a seed). Every unseen evaluation view carries the front-leak ("tattoo")
+information of reconstruct.metrics.front_leak in ``EvalView.front_leak``.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +19,7 @@ from ...body.anny_backend import random_phenotype
 from ...body.base import vertex_normals
 from ...camera import Camera, angle_between_views
 from ..scene import BodySpec, EvalView, Frame, Scene
-from .clothing import paint_texture
+from .clothing import CLOTHING_MODELS, LEAK_DETAILS, PaintedClothing, paint_clothing
 from .motion import walk_in_place
 
 
@@ -32,8 +38,12 @@ class SyntheticConfig:
     texture_size: int = 512
     supersample: int = 2
     leg_spread_deg: float = 5.0
+    clothing: str = "garment"  # "garment" (backs continue the fronts) or "independent" (random backs)
 
     def __post_init__(self) -> None:
+        if self.clothing not in CLOTHING_MODELS:
+            raise ValueError(f"synthetic scene: clothing must be one of {', '.join(CLOTHING_MODELS)}, "
+                             f"found {self.clothing!r}")
         if self.num_frames < 1:
             raise ValueError(f"synthetic scene: num_frames must be >= 1, found {self.num_frames}")
         if self.image_size < 32:
@@ -67,7 +77,8 @@ def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progre
     rng = np.random.default_rng(config.seed)
     spec = BodySpec.anny(random_phenotype(rng), config.leg_spread_deg)
     body = spec.build()
-    texture = paint_texture(body, rng, config.texture_size)
+    painted = paint_clothing(body, rng, config.texture_size, config.clothing)
+    texture = painted.texture
     poses = walk_in_place(body.bone_labels, config.num_frames, config.fps, rng)
 
     z = body.canonical_vertices[:, 2].numpy()
@@ -111,8 +122,66 @@ def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progre
         bar.close()
         mesh.release()
     meta = {"source": "synthetic", "seed": config.seed, "config": config.__dict__, "texture": texture,
-            "target": target.tolist()}
-    return Scene(f"synthetic-seed{config.seed}", spec, frames, views, config.fps, meta)
+            "target": target.tolist(), "clothing": painted.description}
+    scene = Scene(synthetic_scene_name(config), spec, frames, views, config.fps, meta)
+    add_front_leak(scene, painted, config)
+    return scene
+
+
+def synthetic_scene_name(config: SyntheticConfig) -> str:
+    """``synthetic-seedS`` for the original (independent) clothes -- the name runs trained before the
+    garment model recorded in their checkpoints -- and ``synthetic-seedS-garment`` for garments, so
+    that a checkpoint of one is refused on the other."""
+    return f"synthetic-seed{config.seed}" + ("" if config.clothing == "independent" else f"-{config.clothing}")
+
+
+def repaint(config: SyntheticConfig) -> PaintedClothing:
+    """The clothing of ``config``'s scene, painted again (no rendering): the same draws as the build."""
+    rng = np.random.default_rng(config.seed)
+    spec = BodySpec.anny(random_phenotype(rng), config.leg_spread_deg)
+    return paint_clothing(spec.build(), rng, config.texture_size, config.clothing)
+
+
+def _mesh_renderer(body, texture: np.ndarray, supersample: int, ambient: float = 0.85):
+    from renderer.gl_context import shared_offscreen_context
+    from renderer.mesh_renderer import MeshRenderer
+
+    corner_uvs = body.uv_coords.numpy()[body.face_uv_indices.numpy()]
+    return MeshRenderer(shared_offscreen_context(), body.faces.numpy(), corner_uvs, texture,
+                        supersample=supersample, ambient=ambient)
+
+
+def render_scene_views(scene: Scene, texture: np.ndarray, views, *, supersample: int = 2,
+                       ambient: float = 0.85) -> list[np.ndarray]:
+    """The scene's body in the pose and camera of each of ``views`` (evaluation views or frames),
+    rendered with another albedo atlas (as the ground truth is with ``scene.meta['texture']``):
+    (H,W,3) float32 RGB over black, 8-bit rounded."""
+    body = scene.body_model()
+    mesh = _mesh_renderer(body, texture, supersample, ambient)
+    try:
+        out = []
+        for v in views:
+            pose = scene.frames[getattr(v, "frame_index", getattr(v, "index", 0))].pose
+            verts = body.posed_vertices(pose)
+            normals = vertex_normals(verts, body.faces).numpy()
+            out.append(quantize(mesh.render(verts.numpy(), normals, v.camera).rgb))
+        return out
+    finally:
+        mesh.release()
+
+
+def add_front_leak(scene: Scene, painted: PaintedClothing, config: SyntheticConfig) -> None:
+    """Give every unseen evaluation view of ``scene`` its front-leak information: the image regions
+    where the front-only details would land on the back (the leak atlas rendered unlit in the view's
+    pose and camera, 8-bit rounded as a scene file stores it) and the details' colours."""
+    from ...metrics.front_leak import FrontLeakInfo
+
+    unseen = [v for v in scene.eval_views if not v.seen]
+    regions = render_scene_views(scene, painted.leak_atlas, unseen, supersample=config.supersample, ambient=1.0)
+    K = len(LEAK_DETAILS)
+    for v, r in zip(unseen, regions):
+        v.front_leak = FrontLeakInfo(LEAK_DETAILS, r[..., :K], tuple(painted.leak_colors[k] for k in LEAK_DETAILS))
+    scene.meta["front_leak"] = {"details": list(LEAK_DETAILS), "version": 1}
 
 
 def angle_to_seen(azimuth_deg: float) -> float:
