@@ -46,17 +46,15 @@ def _cmd_demo(args) -> int:
 
 
 def _stage1_config(args):
-    import dataclasses
-
-    from reconstruct.avatar.config import AvatarConfig
+    """Stage I settings: the flags, then ``--set KEY=VALUE`` (converted by each field's type;
+    nested avatar settings as ``avatar.KEY``). The dataclass checks the values."""
+    from reconstruct import config as config_layer
     from reconstruct.train.config import Stage1Config
 
-    avatar = AvatarConfig()
-    if args.gaussian_res:
-        avatar.gaussian_resolution = args.gaussian_res
-    if args.hidden:
-        avatar.hidden = args.hidden
-    kw = {"avatar": avatar, "device": args.device, "seed": args.seed}
+    kw: dict = {"device": args.device, "seed": args.seed}
+    avatar = {k: v for k, v in (("gaussian_resolution", args.gaussian_res), ("hidden", args.hidden)) if v}
+    if avatar:
+        kw["avatar"] = avatar
     for key in ("iters", "minutes", "threads"):
         if getattr(args, key) is not None:
             kw[key] = getattr(args, key)
@@ -66,18 +64,11 @@ def _stage1_config(args):
         kw["pose_refinement"] = True
     if args.lpips_backbone or args.lpips_lin:
         kw.update(lpips_backbone=args.lpips_backbone, lpips_lin=args.lpips_lin, lpips_net=args.lpips_net)
-    fields = {f.name: f for f in dataclasses.fields(Stage1Config)}
-    for item in args.set or []:
-        if "=" not in item:
-            raise ValueError(f"--set expects key=value, found {item!r}")
-        key, value = item.split("=", 1)
-        if key not in fields or key == "avatar":
-            raise ValueError(f"--set: unknown Stage I setting {key!r}; known: {sorted(k for k in fields if k != 'avatar')}")
-        default = getattr(Stage1Config(), key)
-        kw[key] = tuple(float(v) for v in value.split(",")) if isinstance(default, tuple) else (
-            value.lower() in ("1", "true", "yes") if isinstance(default, bool) else type(default)(value)
-            if default is not None else float(value))
-    return Stage1Config(**kw)  # checks its values (e.g. --iters must be at least 1)
+    sets = config_layer.parse_overrides(Stage1Config, args.set, "Stage I", "--set")
+    if "avatar" in sets:
+        kw["avatar"] = {**kw.get("avatar", {}), **sets.pop("avatar")}
+    kw.update(sets)
+    return config_layer.with_overrides(Stage1Config(), kw)
 
 
 def _cmd_train(args) -> int:
@@ -105,25 +96,15 @@ STAGE2_SWITCHES = {"no_pose_injection": "pose_injection", "no_canonical_sds": "c
 
 
 def _stage2_overrides(args) -> dict:
-    """The Stage II settings given on the command line (checked by Stage2Config)."""
-    import dataclasses
-
+    """The Stage II settings given on the command line: the flags, then ``--set2 KEY=VALUE``
+    (converted by each field's type); checked by Stage2Config at once."""
+    from reconstruct import config as config_layer
     from reconstruct.stage2.config import Stage2Config
 
     out = {field: getattr(args, flag) for flag, field in STAGE2_FLAGS.items() if getattr(args, flag) is not None}
     out.update({field: False for flag, field in STAGE2_SWITCHES.items() if getattr(args, flag)})
-    fields = {f.name for f in dataclasses.fields(Stage2Config)}
-    for item in args.set2 or []:
-        if "=" not in item:
-            raise ValueError(f"--set2 expects key=value, found {item!r}")
-        key, value = item.split("=", 1)
-        if key not in fields:
-            raise ValueError(f"--set2: unknown Stage II setting {key!r}; known: {sorted(fields)}")
-        default = getattr(Stage2Config(), key)
-        out[key] = (value.lower() in ("1", "true", "yes") if isinstance(default, bool)
-                    else tuple(float(v) for v in value.split(",")) if isinstance(default, tuple)
-                    else type(default)(value) if default is not None else value)
-    Stage2Config(**out)  # fail early on bad values
+    out.update(config_layer.parse_overrides(Stage2Config, args.set2, "Stage II", "--set2"))
+    config_layer.with_overrides(Stage2Config(), out)  # fail early on bad values
     return out
 
 
@@ -135,10 +116,11 @@ def _cmd_eval(args) -> int:
 
 def _cmd_export(args) -> int:
     from app.export import VIDEO_SUFFIXES, check_destination, export_novel, export_orbit, export_poses
-    from app.run_setup import check_run, resume_run
     from reconstruct.data.load import load_scene
+    from reconstruct.run_folder import RunFolder
 
-    info = check_run(args.run, "export")
+    run = RunFolder(args.run)
+    run.check("export")
     if args.orbit is not None and args.orbit < 1:
         raise ValueError(f"--orbit must be at least 1, found {args.orbit}")
     if args.novel is not None:
@@ -149,22 +131,28 @@ def _cmd_export(args) -> int:
         if args.frames < 2:
             raise ValueError(f"--frames must be at least 2, found {args.frames}")
     check_destination(args.out, suffixes=VIDEO_SUFFIXES)  # before any loading or rendering
-    session = resume_run(args.run, info)
-    scene = session.scene
+    avatar = run.resume().avatar()
+    scene = avatar.scene
     common = {"mode": args.mode, "progress": not args.quiet}
     if args.orbit is not None:
         fps = 30 if args.fps is None else args.fps
-        out = export_orbit(session, args.out, frames=args.orbit, size=args.size, fps=fps, frame_index=args.frame,
+        out = export_orbit(avatar, args.out, frames=args.orbit, size=args.size, fps=fps, frame_index=args.frame,
                            **common)
     elif args.novel is not None:
-        out = export_novel(session, args.out, args.novel, frames=args.frames, size=args.size, fps=args.fps, **common)
+        out = export_novel(avatar, args.out, args.novel, frames=args.frames, size=args.size, fps=args.fps, **common)
     else:
         poses = load_scene(args.poses, progress=False)
         if poses.name == scene.name:
-            poses = scene  # the run's own scene: use the session's (possibly refined) poses
-        out = export_poses(session, args.out, scene=poses, size=args.size, fps=args.fps, **common)
+            poses = scene  # the run's own scene: use the avatar's (possibly refined) poses
+        out = export_poses(avatar, args.out, scene=poses, size=args.size, fps=args.fps, **common)
     print(f"wrote {out}")
     return 0
+
+
+def _cmd_migrate(args) -> int:
+    from app.train_cmd import migrate
+
+    return migrate(args.run, trust=args.trust)
 
 
 def _cmd_studio(args) -> int:
@@ -270,6 +258,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--mode", default="rgb", choices=["rgb", "normal", "depth", "alpha", "visibility"])
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_cmd_export)
+
+    s = sub.add_parser("migrate", help="convert a run folder's checkpoints written by an earlier version "
+                                       "(format 1, which could hold code) to the current data-only format")
+    s.add_argument("run", type=Path)
+    s.add_argument("--trust", action="store_true",
+                   help="you trust where this run folder came from: an old checkpoint that holds Python objects other than "
+                        "tensors and plain data is read with full unpickling, which can run code")
+    s.set_defaults(func=_cmd_migrate)
 
     s = sub.add_parser("demo", help="the headless pipeline on the built-in demo scene")
     s.add_argument("--scene", default=DEFAULT_SCENE)

@@ -9,10 +9,10 @@ import torch
 from reconstruct.atomic import atomic_output
 
 
-def write_comparison_sheet(session, path: str | Path, *, frame_index: int | None = None,
+def write_comparison_sheet(avatar, path: str | Path, *, frame_index: int | None = None,
                            others: list | None = None) -> Path:
-    """Ground truth on top, then one row per avatar: ``session`` and any ``others`` given as
-    ``(label, session)`` pairs on the same scene (e.g. Stage I and Stage II of one run)."""
+    """Ground truth on top, then one row per avatar: ``avatar`` (a ``TrainedAvatar``) and any
+    ``others`` given as ``(label, avatar)`` pairs on the same scene (e.g. Stage I and Stage II)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -21,19 +21,20 @@ def write_comparison_sheet(session, path: str | Path, *, frame_index: int | None
     from reconstruct.metrics import psnr
     from reconstruct.train.render import render_avatar
 
-    scene = session.scene
+    scene = avatar.scene
     views = scene.eval_views
     if not views:
         raise ValueError(f"scene {scene.name} has no evaluation views to compare with")
     if frame_index is None:
         frame_index = views[0].frame_index
     chosen = [v for v in views if v.frame_index == frame_index]
-    rows = [(f"avatar (stage {getattr(session, 'stage', 1)}, step {session.step_count})", session)] + list(others or [])
+    rows = [(f"avatar (stage {avatar.stage}, step {avatar.step})", avatar)] + list(others or [])
     renders = []
     with torch.no_grad():
-        for _, s in rows:
-            posed = s.model.pose(s.canonical_at(frame_index), s.frame_transforms(frame_index))
-            renders.append([render_avatar(posed, v.camera, s.background, normals=False).rgb.clamp(0, 1) for v in chosen])
+        for _, a in rows:
+            posed = a.state.posed(frame_index)
+            bg = torch.tensor(a.background, dtype=torch.float32, device=a.state.device)
+            renders.append([render_avatar(posed, v.camera, bg, normals=False).rgb.clamp(0, 1) for v in chosen])
     fig, axes = plt.subplots(1 + len(rows), len(chosen), figsize=(1.6 * len(chosen), 1.9 * (1 + len(rows))),
                              squeeze=False)
     for c, v in enumerate(chosen):

@@ -21,10 +21,10 @@ def run_demo(spec: str, out: Path, *, minutes: float = 3.0, stage2_minutes: floa
     config = Stage1Config(iters=10 ** 7, minutes=minutes, eval_every_seconds=max(15.0, 10.0 * minutes), threads=threads)
     if stage2_minutes > 0:
         stage2 = Stage2Config(iters=10 ** 7, minutes=stage2_minutes)
-        session = train(spec, run, config, stage="all", stage2=stage2, allow_incomplete=True)
+        trainer = train(spec, run, config, stage="all", stage2=stage2, allow_incomplete=True)
     else:
-        session = train(spec, run, config)
-    print(f"contact sheet: {write_contact_sheet(session.scene, out / 'contact_sheet.png')}")
-    print(f"comparison: {write_comparison_sheet(session, out / 'comparison.png')}")
+        trainer = train(spec, run, config)
+    print(f"contact sheet: {write_contact_sheet(trainer.scene, out / 'contact_sheet.png')}")
+    print(f"comparison: {write_comparison_sheet(trainer.avatar(), out / 'comparison.png')}")
     print(f"error against run time: {run / 'error_vs_time.png'}; metrics: {run / 'metrics.jsonl'}")
     return 0

@@ -5,6 +5,9 @@ Frames are drawn offscreen with ``SplatRenderer`` (EGL) and written by imageio: 
 (per-frame duration from the fps, loops forever) and ``.png`` (one screenshot). Files are written
 atomically: to a hidden temporary file in the destination folder that is renamed over the target
 at the end and removed on any error.
+
+Every export takes a ``reconstruct.train.trainer.TrainedAvatar`` (``Trainer.avatar()``, or
+``Trainer.frozen()`` while training goes on).
 """
 
 from __future__ import annotations
@@ -97,20 +100,6 @@ def write_frames(frames: Iterable[np.ndarray], path, fps: float) -> int:
 
 
 # ----------------------------------------------------------------------------- snapshots / cameras
-def _snapshot_at_pose(session, pose, frame_index: int = 0):
-    """The session's avatar posed at ``pose`` (a BodyPose of the session's body model)."""
-    import torch
-
-    from reconstruct.snapshot import Snapshot
-
-    with torch.no_grad():
-        # Stage II decodes the canonical Gaussians from the pose's features; Stage I ignores the pose
-        canon = session.canonical_for_pose(pose)
-        posed = session.model.pose(canon, session.body.bone_transforms(pose).float().to(canon.means.device))
-        return Snapshot.from_gaussians(posed, session.seen_flags(), space="observation", frame_index=frame_index,
-                                       stage=session.stage, step=session.step_count)
-
-
 def orbit_cameras(snap, frames: int, width: int, height: int, elevation: float = 5.0, fill: float = 0.8,
                   fov_y_deg: float = 30.0) -> list:
     """``frames`` cameras on a full 360° orbit around the snapshot's bounding-box centre, far
@@ -220,30 +209,30 @@ def _check_video_settings(fps, size=None) -> None:
         raise ValueError(f"size must be at least 2 pixels, found {size}")
 
 
-def plan_orbit(session, out_path, *, frames: int = 60, size: int = 512, fps: float = 30, frame_index: int = 0,
+def plan_orbit(avatar, out_path, *, frames: int = 60, size: int = 512, fps: float = 30, frame_index: int = 0,
                elevation: float = 5.0) -> ExportPlan:
     """A full 360° orbit (``frames`` views) around the avatar posed at ``frame_index``."""
     out = check_destination(out_path, suffixes=VIDEO_SUFFIXES, size=(size, size))
     if frames < 1:
         raise ValueError(f"orbit needs at least 1 frame, found {frames}")
     _check_video_settings(fps, size)
-    n = len(session.scene.frames)
+    n = len(avatar.scene.frames)
     if not 0 <= frame_index < n:
         raise ValueError(f"frame {frame_index} is out of range: the scene has {n} frames (0..{n - 1})")
-    snap = session.make_snapshot("observation", frame_index)
+    snap = avatar.make_snapshot("observation", frame_index)
     cameras = orbit_cameras(snap, frames, size, size, elevation=elevation)
     return ExportPlan(out, cameras, lambda i: snap, float(fps), "orbit")
 
 
-def plan_poses(session, out_path, *, scene=None, size: int | None = 512, fps: float | None = None,
+def plan_poses(avatar, out_path, *, scene=None, size: int | None = 512, fps: float | None = None,
                camera=None) -> ExportPlan:
-    """One frame per pose of ``scene`` (default the session's own) from that frame's training
+    """One frame per pose of ``scene`` (default the avatar's own) from that frame's training
     camera (or ``camera``), longer side ``size`` pixels, at ``fps`` (default the scene's)."""
-    own = scene is None or scene is session.scene
-    scene = session.scene if scene is None else scene
-    if not own and scene.body != session.scene.body:
+    own = scene is None or scene is avatar.scene
+    scene = avatar.scene if scene is None else scene
+    if not own and scene.body != avatar.scene.body:
         raise ValueError(f"scene {scene.name}: its body model differs from the one the avatar was trained on "
-                         f"({session.scene.name}); poses cannot be transferred")
+                         f"({avatar.scene.name}); poses cannot be transferred")
     if not scene.frames:
         raise ValueError(f"scene {scene.name}: no frames to export")
     fps = float(scene.fps if fps is None else fps)
@@ -256,23 +245,23 @@ def plan_poses(session, out_path, *, scene=None, size: int | None = 512, fps: fl
     frames = scene.frames
 
     def snapshot(i):
-        return session.make_snapshot("observation", i) if own else _snapshot_at_pose(session, frames[i].pose, i)
+        return avatar.make_snapshot("observation", i) if own else avatar.snapshot_at_pose(frames[i].pose, i)
 
     return ExportPlan(out, cams, snapshot, fps, "poses")
 
 
-def plan_novel(session, out_path, name: str = "walk", *, frames: int = 30, size: int | None = 512,
+def plan_novel(avatar, out_path, name: str = "walk", *, frames: int = 30, size: int | None = 512,
                fps: float | None = None, camera=None) -> ExportPlan:
     """A novel pose sequence (``reconstruct.body.novel_poses``: walk cycle, arms up) placed where
     the video's first frame stands, seen from its training camera (or ``camera``)."""
     from reconstruct.body.novel_poses import novel_pose_sequence
 
-    fps = float(session.scene.fps if fps is None else fps)
+    fps = float(avatar.scene.fps if fps is None else fps)
     _check_video_settings(fps)
-    cam = _fit_camera(camera if camera is not None else session.scene.frames[0].camera, size)
+    cam = _fit_camera(camera if camera is not None else avatar.scene.frames[0].camera, size)
     out = check_destination(out_path, suffixes=VIDEO_SUFFIXES, size=(cam.width, cam.height))
-    poses = novel_pose_sequence(session.body, name, frames, base=session.scene.frames[0].pose)
-    return ExportPlan(out, [cam] * len(poses), lambda i: _snapshot_at_pose(session, poses[i], 0), fps, name)
+    poses = novel_pose_sequence(avatar.body, name, frames, base=avatar.scene.frames[0].pose)
+    return ExportPlan(out, [cam] * len(poses), lambda i: avatar.snapshot_at_pose(poses[i], 0), fps, name)
 
 
 def render_plan(plan: ExportPlan, *, mode="rgb", background=(0, 0, 0), progress: bool = True) -> Path:
@@ -289,76 +278,48 @@ def render_plan(plan: ExportPlan, *, mode="rgb", background=(0, 0, 0), progress:
     return plan.out
 
 
-def frozen_copy(session):
-    """A copy of ``session`` whose avatar no longer changes: the model, the seen flags and the
-    pose corrections are copied (the scene and body are shared). Take it between training steps
-    (the studio asks its trainer thread); exports then run from it while training goes on."""
-    import copy
-
-    import torch
-
-    from reconstruct.snapshot import SnapshotBox
-
-    f = copy.copy(session)
-    f.model = copy.deepcopy(session.model, memo={id(session.body): session.body, id(session.scene): session.scene})
-    f.seen = session.seen.clone()
-    if getattr(session, "trusted_seen", None) is not None:
-        f.trusted_seen = session.trusted_seen.clone()
-    f.latest = dict(session.latest)
-    f.snapshots = SnapshotBox()
-    for name in ("_transforms", "_articulations"):  # caches the trainer may add to meanwhile
-        if isinstance(getattr(session, name, None), dict):
-            setattr(f, name, dict(getattr(session, name)))
-    if hasattr(session, "pose_delta"):
-        with torch.no_grad():
-            f.pose_delta = torch.nn.Parameter(session.pose_delta.detach().clone(), requires_grad=False)
-    f.run_dir = None  # a copy never writes to the run
-    f.log = None
-    return f
-
-
 # ----------------------------------------------------------------------------- public API
-def export_orbit(session, out_path, *, frames: int = 60, size: int = 512, fps: float = 30, frame_index: int = 0,
+def export_orbit(avatar, out_path, *, frames: int = 60, size: int = 512, fps: float = 30, frame_index: int = 0,
                  elevation: float = 5.0, mode="rgb", background=(0, 0, 0), progress: bool = True) -> Path:
     """A full 360° orbit (``frames`` views) around the avatar posed at ``frame_index``, written to
     ``out_path`` (``.mp4`` or ``.gif``) at ``fps``. Returns the path."""
     check_destination(out_path, suffixes=VIDEO_SUFFIXES, size=(size, size))
     mode = _check_mode(mode)
-    plan = plan_orbit(session, out_path, frames=frames, size=size, fps=fps, frame_index=frame_index,
+    plan = plan_orbit(avatar, out_path, frames=frames, size=size, fps=fps, frame_index=frame_index,
                       elevation=elevation)
     return render_plan(plan, mode=mode, background=background, progress=progress)
 
 
-def export_poses(session, out_path, *, scene=None, size: int | None = 512, fps: float | None = None, camera=None,
+def export_poses(avatar, out_path, *, scene=None, size: int | None = 512, fps: float | None = None, camera=None,
                  mode="rgb", background=(0, 0, 0), progress: bool = True) -> Path:
-    """One frame per pose of ``scene`` (default the session's own scene) seen from that frame's
+    """One frame per pose of ``scene`` (default the avatar's own scene) seen from that frame's
     training camera (or the given ``camera``), longer side ``size`` pixels (None: the camera's
     size), at ``fps`` (default the scene's). Returns the path."""
     mode = _check_mode(mode)
-    plan = plan_poses(session, out_path, scene=scene, size=size, fps=fps, camera=camera)
+    plan = plan_poses(avatar, out_path, scene=scene, size=size, fps=fps, camera=camera)
     return render_plan(plan, mode=mode, background=background, progress=progress)
 
 
-def export_novel(session, out_path, name: str = "walk", *, frames: int = 30, size: int | None = 512,
+def export_novel(avatar, out_path, name: str = "walk", *, frames: int = 30, size: int | None = 512,
                  fps: float | None = None, camera=None, mode="rgb", background=(0, 0, 0),
                  progress: bool = True) -> Path:
     """A novel pose sequence (walk cycle, arms up) of ``frames`` frames; see ``plan_novel``."""
     mode = _check_mode(mode)
-    plan = plan_novel(session, out_path, name, frames=frames, size=size, fps=fps, camera=camera)
+    plan = plan_novel(avatar, out_path, name, frames=frames, size=size, fps=fps, camera=camera)
     return render_plan(plan, mode=mode, background=background, progress=progress)
 
 
-def export_screenshot(session, out_path, camera=None, *, frame_index: int = 0, size: int | None = None,
+def export_screenshot(avatar, out_path, camera=None, *, frame_index: int = 0, size: int | None = None,
                       mode="rgb", background=(0, 0, 0), transparent: bool = False) -> Path:
     """One ``.png`` of the avatar posed at ``frame_index`` seen by ``camera`` (default: that
     frame's training camera), RGB, or RGBA with ``transparent``."""
-    n = len(session.scene.frames)
+    n = len(avatar.scene.frames)
     if not 0 <= frame_index < n:
         raise ValueError(f"frame {frame_index} is out of range: the scene has {n} frames (0..{n - 1})")
     out = check_destination(out_path, suffixes=IMAGE_SUFFIXES)
     mode = _check_mode(mode)
-    cam = _fit_camera(camera if camera is not None else session.scene.frames[frame_index].camera, size)
-    snap = session.make_snapshot("observation", frame_index)
+    cam = _fit_camera(camera if camera is not None else avatar.scene.frames[frame_index].camera, size)
+    snap = avatar.make_snapshot("observation", frame_index)
     with _Renderer() as renderer:
         renderer.set_snapshot(snap)
         img = renderer.render(cam, mode=mode, background=None if transparent else background, dtype=np.uint8)
@@ -369,18 +330,18 @@ def export_screenshot(session, out_path, camera=None, *, frame_index: int = 0, s
     return out
 
 
-def export(session, out_path, **kwargs) -> Path:
+def export(avatar, out_path, **kwargs) -> Path:
     """Dispatch by suffix: ``.png`` -> screenshot, ``.mp4``/``.gif`` -> orbit (or poses with
     ``poses=True``, or a novel pose sequence with ``novel="walk"``)."""
     suffix = Path(out_path).suffix.lower()
     if suffix in IMAGE_SUFFIXES:
-        return export_screenshot(session, out_path, **kwargs)
+        return export_screenshot(avatar, out_path, **kwargs)
     if suffix in VIDEO_SUFFIXES:
         novel = kwargs.pop("novel", None)
         if novel:
-            return export_novel(session, out_path, novel, **kwargs)
+            return export_novel(avatar, out_path, novel, **kwargs)
         if kwargs.pop("poses", False):
-            return export_poses(session, out_path, **kwargs)
-        return export_orbit(session, out_path, **kwargs)
+            return export_poses(avatar, out_path, **kwargs)
+        return export_orbit(avatar, out_path, **kwargs)
     raise ValueError(f"{out_path}: unsupported output type {suffix or '(no suffix)'!r}; "
                      f"supported: {', '.join(SUPPORTED_SUFFIXES)}")

@@ -1,135 +1,89 @@
-"""Headless ``train`` and ``eval`` commands."""
+"""Headless ``train``, ``eval`` and ``migrate`` commands (all through ``RunFolder``)."""
 
 from __future__ import annotations
 
 import json
-import os
 import sys
 from pathlib import Path
 
 from tqdm import tqdm
 
-
-class RunLockedError(RuntimeError):
-    pass
+from reconstruct.run_folder import RunFolder
 
 
-class RunLock:
-    """Refuses a second training process on the same run folder: an exclusive ``flock`` on
-    ``RUN/.lock`` held for the whole run (the kernel drops it when the process dies, even by
-    SIGKILL), with the holder's pid written inside for the message."""
-
-    def __init__(self, run_dir: Path) -> None:
-        self.path = run_dir / ".lock"
-        self._fh = None
-
-    def __enter__(self):
-        import fcntl
-
-        fh = open(self.path, "a+")
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            fh.seek(0)
-            pid = fh.read().strip() or "?"
-            fh.close()
-            raise RunLockedError(f"{self.path.parent}: another training process (pid {pid}) is using this run folder")
-        fh.seek(0)
-        fh.truncate()
-        fh.write(str(os.getpid()))
-        fh.flush()
-        self._fh = fh
-        return self
-
-    def __exit__(self, *exc):
-        import fcntl
-
-        if self._fh is not None:  # the file stays (unlinking it would let two holders lock two inodes)
-            self._fh.truncate(0)
-            fcntl.flock(self._fh, fcntl.LOCK_UN)
-            self._fh.close()
-            self._fh = None
-
-
-def _run(session, desc: str, progress: bool) -> None:
-    """Steps until the session's stage is done, with a progress bar; saves on the way out."""
-    done, total, _, minutes = session.run_length()
-    session.maybe_evaluate(force=done == 0)
+def _run(trainer, desc: str, progress: bool) -> None:
+    """Steps until the trainer's stage is done, with a progress bar; saves on the way out."""
+    done, total, _, minutes = trainer.run_length()
+    trainer.maybe_evaluate(force=done == 0)
     # a bar over steps, or over the stage's progress in per mille when minutes may end it first
     by_time = bool(minutes)
-    bar = tqdm(total=1000 if by_time else total, initial=round(1000 * session.progress) if by_time else done,
+    bar = tqdm(total=1000 if by_time else total, initial=round(1000 * trainer.progress) if by_time else done,
                desc=desc + (f" ({minutes:g} min)" if by_time else ""), disable=not progress,
                unit="‰" if by_time else "it")
     try:
-        while not session.done:
-            out, _ = session.advance()
-            bar.update(round(1000 * session.progress) - bar.n if by_time else 1)
-            if session.step_count % 25 == 0 and not out.get("skipped"):
+        while not trainer.done:
+            out, _ = trainer.advance()
+            bar.update(round(1000 * trainer.progress) - bar.n if by_time else 1)
+            if trainer.step_count % 25 == 0 and not out.get("skipped"):
                 bar.set_postfix(loss=f"{out['loss']:.4f}",
-                                seen=f"{session.latest.get('seen_psnr', float('nan')):.1f}",
-                                unseen=f"{session.latest.get('unseen_psnr', float('nan')):.1f}")
+                                seen=f"{trainer.latest.get('seen_psnr', float('nan')):.1f}",
+                                unseen=f"{trainer.latest.get('unseen_psnr', float('nan')):.1f}")
     finally:
         bar.close()
-        session.save()
-    session.maybe_evaluate(force=True)
-    session.save()
+        trainer.save()
+    trainer.maybe_evaluate(force=True)
+    trainer.save()
 
 
-def _report(session, run_dir: Path) -> None:
+def _report(trainer, run: RunFolder) -> None:
     from reconstruct.train.report import error_vs_time_table, plot_error_vs_time
 
-    print(error_vs_time_table(session.log.read("eval")))
-    print(f"wrote {plot_error_vs_time(run_dir)}", file=sys.stderr)
+    print(error_vs_time_table(trainer.log.read("eval")))
+    print(f"wrote {plot_error_vs_time(run.path)}", file=sys.stderr)
+
+
+def _describe_stage1(trainer) -> None:
+    if trainer.lpips_note:
+        print(trainer.lpips_note, file=sys.stderr)
+    if not trainer.data.use_normals:
+        print("normal loss left out: the scene has no normal maps", file=sys.stderr)
+    width, height = trainer.scene.image_size
+    print(f"{trainer.state.num_gaussians} Gaussians, images {width}x{height}, target {trainer.plan.describe()}",
+          file=sys.stderr)
+
+
+def _enter_stage2(trainer, run: RunFolder, stage2, allow_incomplete: bool):
+    from reconstruct.stage2.config import Stage2Config
+
+    if trainer.stage == 2:
+        return trainer
+    if isinstance(stage2, dict) or stage2 is None:
+        stage2 = Stage2Config(**(stage2 or {}))
+    plan = run.start_stage2(trainer, stage2, allow_incomplete=allow_incomplete)
+    print(f"Stage II: {plan.describe()}", file=sys.stderr)
+    return trainer
 
 
 def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True, stage: str = "1", stage2=None,
           allow_incomplete: bool = False):
-    """Train until the run's steps or minutes are used up; returns the session. ``stage``: "1",
+    """Train until the run's steps or minutes are used up; returns the trainer. ``stage``: "1",
     "2" (continue the run's Stage I, or resume its Stage II) or "all"."""
-    from app.run_setup import open_session
-
+    run = RunFolder(run_dir)
     if stage == "2":
         return train_stage2(run_dir, stage2, allow_incomplete=allow_incomplete, progress=progress)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    with RunLock(run_dir):
-        session = open_session(scene_spec, run_dir, config, progress=progress)
-        if session.stage == 2:
+    with run.lock():
+        trainer = run.open(scene_spec, config, progress=progress)
+        if trainer.stage == 2:
             if stage == "1":
                 raise RuntimeError(f"{run_dir}: this run is already in Stage II (use --stage 2 to continue it)")
         else:
-            config = session.config
-            if session.lpips_note:
-                print(session.lpips_note, file=sys.stderr)
-            if not session.use_normals:
-                print("normal loss left out: the scene has no normal maps", file=sys.stderr)
-            width, height = session.scene.image_size
-            print(f"{session.model.num_gaussians} Gaussians, images {width}x{height}, "
-                  f"target {config.iters} steps" + (f" or {config.minutes:g} min" if config.minutes else ""),
-                  file=sys.stderr)
-            _run(session, "stage I", progress)
+            _describe_stage1(trainer)
+            _run(trainer, "stage I", progress)
         if stage == "all":
-            session = _enter_stage2(session, run_dir, stage2, allow_incomplete)
-            _run(session, "stage II", progress)
-        _report(session, run_dir)
-    return session
-
-
-def _enter_stage2(session, run_dir: Path, stage2, allow_incomplete: bool):
-    from reconstruct.stage2.config import Stage2Config
-    from reconstruct.stage2.session import start_stage2
-    from reconstruct.train.session import update_run_info
-
-    if session.stage == 2:
-        return session
-    if isinstance(stage2, dict) or stage2 is None:
-        stage2 = Stage2Config(**(stage2 or {}))
-    session = start_stage2(session, stage2, allow_incomplete=allow_incomplete)
-    update_run_info(run_dir, {"stage": 2, "stage2": session.stage2.to_dict(), "stage1_step": session.stage1_step})
-    s2 = session.stage2
-    print(f"Stage II: prior {session.prior.describe()}; {session.latest.get('unseen_views', 0)} unseen of "
-          f"{len(session.selected_views)} candidate views (threshold {s2.visibility_threshold:g}); "
-          f"{s2.iters} steps" + (f" or {s2.minutes:g} min" if s2.minutes else ""), file=sys.stderr)
-    return session
+            _enter_stage2(trainer, run, stage2, allow_incomplete)
+            _run(trainer, "stage II", progress)
+        _report(trainer, run)
+    return trainer
 
 
 def train_stage2(run_dir: Path, stage2_overrides: dict | None = None, *, allow_incomplete: bool = False,
@@ -137,46 +91,36 @@ def train_stage2(run_dir: Path, stage2_overrides: dict | None = None, *, allow_i
     """Continue a run with Stage II: from its finished Stage I checkpoint, or resume its Stage II.
     ``stage2_overrides``: Stage II settings given on the command line (the rest from the checkpoint
     when resuming, else the paper's defaults)."""
-    from app.run_setup import check_run
-    from reconstruct.data.load import load_scene
     from reconstruct.stage2.config import Stage2Config
-    from reconstruct.stage2.session import Stage2Session
-    from reconstruct.train.checkpoint import load_checkpoint
-    from reconstruct.train.session import CHECKPOINT_NAME, TrainingSession
 
     if isinstance(stage2_overrides, Stage2Config):
         stage2_overrides = stage2_overrides.to_dict()
     overrides = dict(stage2_overrides or {})
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
+    run = RunFolder(run_dir)
+    if not run.path.is_dir():
         raise FileNotFoundError(f"{run_dir}: no such run folder; train Stage I first (train --stage 1 --out {run_dir})")
-    info = check_run(run_dir, "continue with Stage II")
-    scene = load_scene(info["scene"], progress=progress)
-    with RunLock(run_dir):
-        state = load_checkpoint(run_dir / CHECKPOINT_NAME)
-        if state.get("stage", 1) == 2:
-            session = Stage2Session.from_state(scene, run_dir, state, stage2=overrides)
-            session.log.truncate_after(session.step_count)
-            print(f"resuming Stage II of {run_dir} at Stage II step {session.stage2_step}", file=sys.stderr)
+    run.check("continue with Stage II")
+    with run.lock():
+        trainer = run.resume_training(stage2_overrides=overrides, progress=progress)
+        if trainer.stage == 2:
+            print(f"resuming Stage II of {run_dir} at Stage II step {trainer.stage_step}", file=sys.stderr)
         else:
-            s1 = TrainingSession.from_state(scene, run_dir, state)
-            s1.log.truncate_after(s1.step_count)
-            session = _enter_stage2(s1, run_dir, Stage2Config(**overrides), allow_incomplete)
-        _run(session, "stage II", progress)
-        _report(session, run_dir)
-    return session
+            _enter_stage2(trainer, run, Stage2Config(**overrides), allow_incomplete)
+        _run(trainer, "stage II", progress)
+        _report(trainer, run)
+    return trainer
 
 
 def evaluate(run_dir: Path, *, as_json: bool) -> int:
-    from app.run_setup import check_run, resume_run
     from reconstruct.train.report import plot_error_vs_time
 
-    info = check_run(run_dir, "evaluate")
-    session = resume_run(run_dir, info)
-    rows, summary = session.evaluate()
-    result = {"run": str(run_dir), "scene": info["scene"], "step": session.step_count, **summary, "views": rows}
-    if session.lpips_note:
-        result["note"] = session.lpips_note
+    run = RunFolder(run_dir)
+    info = run.check("evaluate")
+    trainer = run.resume()
+    rows, summary = trainer.evaluate()
+    result = {"run": str(run_dir), "scene": info["scene"], "step": trainer.step_count, **summary, "views": rows}
+    if trainer.lpips_note:
+        result["note"] = trainer.lpips_note
     if as_json:
         print(json.dumps(result, indent=1))
     else:
@@ -188,4 +132,16 @@ def evaluate(run_dir: Path, *, as_json: bool) -> int:
         print(f"wrote {plot_error_vs_time(run_dir)}", file=sys.stderr)
     except ValueError as exc:
         print(f"no error-vs-time plot: {exc}", file=sys.stderr)
+    return 0
+
+
+def migrate(run_dir: Path, *, trust: bool) -> int:
+    run = RunFolder(run_dir)
+    run.info()
+    with run.lock():
+        done = run.migrate(trust=trust)
+    for path in done:
+        print(f"converted {path} to the current checkpoint format")
+    if not done:
+        print(f"{run_dir}: its checkpoints are already in the current format")
     return 0

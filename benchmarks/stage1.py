@@ -29,10 +29,10 @@ def child(cfg: dict) -> dict:
     from reconstruct.train import losses as L
     from reconstruct.train.config import Stage1Config
     from reconstruct.train.render import render_avatar
-    from reconstruct.train.session import TrainingSession
+    from reconstruct.train.trainer import Trainer
 
     scene = load_scene(f"synthetic:seed=0,size={cfg['size']}", progress=False)
-    s = TrainingSession(scene, Stage1Config(eval_every_seconds=1e9, avatar=AvatarConfig(gaussian_resolution=cfg["res"])))
+    s = Trainer(scene, Stage1Config(eval_every_seconds=1e9, avatar=AvatarConfig(gaussian_resolution=cfg["res"])))
     for _ in range(3):
         s.step()
     parts: dict[str, float] = {}
@@ -46,15 +46,15 @@ def child(cfg: dict) -> dict:
     n = cfg["steps"]
     t_all = time.perf_counter()
     for _ in range(n):
-        i = s._next_frame()
-        tgt = s._targets[i]
+        i = s.next_frame()
+        tgt = s.data.targets[i]
         canon = timed("decoder", lambda: s.model.canonical())
-        posed = timed("lbs", lambda: s.model.pose(canon, s.frame_transforms(i)))
-        r = timed("raster fwd", lambda: render_avatar(posed, tgt["camera"], s.background, normals=True, first_hit=True))
+        posed = timed("lbs", lambda: s.model.pose(canon, s.state.frame_transforms(i)))
+        r = timed("raster fwd", lambda: render_avatar(posed, tgt.camera, s.background, normals=True, first_hit=True))
 
         def loss_fn():
-            return (0.8 * L.mse(r.rgb, tgt["image"]) + 0.2 * L.ssim_loss(r.rgb, tgt["image"])
-                    + 0.8 * L.mse(r.normal, tgt["normal"]) + 0.85 * L.mean_square(canon.offsets_raw)
+            return (0.8 * L.mse(r.rgb, tgt.image) + 0.2 * L.ssim_loss(r.rgb, tgt.image)
+                    + 0.8 * L.mse(r.normal, tgt.normal) + 0.85 * L.mean_square(canon.offsets_raw)
                     + 0.03 * L.mean_square(canon.scales) + L.mean_square(canon.features))
 
         loss = timed("losses", loss_fn)

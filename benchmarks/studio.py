@@ -41,15 +41,15 @@ def child(kind: str, seconds: float, warmup: float, out: str) -> None:
 
     result: dict = {"kind": kind}
     if kind == "headless":
-        from app.run_setup import open_session
         from app.studio.trainer_thread import TrainerThread
+        from reconstruct.data.load import load_scene
+        from reconstruct.train.trainer import Trainer
 
-        session = open_session(DEFAULT_SCENE, None, _config(), progress=False)
-        trainer = TrainerThread(session).start()
+        trainer = TrainerThread(Trainer(load_scene(DEFAULT_SCENE, progress=False), _config())).start()
         time.sleep(warmup)
-        s0, t0 = session.step_count, time.perf_counter()
+        s0, t0 = trainer.status().step, time.perf_counter()
         time.sleep(seconds)
-        s1, t1 = session.step_count, time.perf_counter()
+        s1, t1 = trainer.status().step, time.perf_counter()
         trainer.stop(save=False)
         result.update(its=(s1 - s0) / (t1 - t0), fps=None, steps=s1 - s0)
     else:
@@ -61,12 +61,12 @@ def child(kind: str, seconds: float, warmup: float, out: str) -> None:
         def script(app):
             now = time.perf_counter()
             if active:
-                app.last_input = now  # as if the user kept interacting
+                app.pacer.note_input()  # as if the user kept interacting
             mark.setdefault("start", now)
             if "t0" not in mark and now - mark["start"] >= warmup:
-                mark.update(t0=now, s0=app.session.step_count, f0=app.frame_count)
+                mark.update(t0=now, s0=app.status.step, f0=app.frame_count)
             elif "t0" in mark and now - mark["t0"] >= seconds:
-                mark.update(t1=now, s1=app.session.step_count, f1=app.frame_count)
+                mark.update(t1=now, s1=app.status.step, f1=app.frame_count)
                 app.close()
 
         run_studio(DEFAULT_SCENE, None, config=_config(), size=(1280, 800), script=script, progress=False)
@@ -92,27 +92,27 @@ def screenshots(folder: str, train_s: float, run: str | None = None) -> None:
     def script(app):
         now = time.perf_counter()
         st.setdefault("t", now)
-        p, s = st["phase"], app.session
+        p, s = st["phase"], app.status
         if p == 0 and now - st["t"] > train_s:
             app.request_screenshot(out / "studio_main_window.png")
             app.push_stage2_settings(canonical_ratio=0.6)
-            app.controls.update(start_stage2=True)
+            app.start_stage2()
             st["phase"] = 1
-        elif p == 1 and s.stage == 2 and s.stage2_step >= 4:
+        elif p == 1 and s.stage == 2 and s.stage_step >= 4:
             app.request_screenshot(out / "studio_stage2.png")
             st["phase"] = 4
         elif p == 4:  # a frame later: the visibility map from an unseen evaluation view, beside its ground truth
             app.set_mode("visibility")
-            app.show_ground_truth = True
-            app.show_gui = False  # the panels would cover the two halves
+            app.view.show_ground_truth = True
+            app.view.show_gui = False  # the panels would cover the two halves
             unseen = [k for k, v in enumerate(app.scene.eval_views) if not v.seen and abs(v.azimuth_deg) >= 60]
             app.snap_to_eval_view(unseen[0] if unseen else 0)
             st["phase"], st["t2"] = 2, now
-        elif p == 1 and app.trainer.stage2_message:
-            print("Stage II:", app.trainer.stage2_message)
+        elif p == 1 and s.stage2_message:
+            print("Stage II:", s.stage2_message)
             st["phase"], st["t2"] = 2, now
             app.set_mode("visibility")
-            app.show_ground_truth = True
+            app.view.show_ground_truth = True
         elif p == 2 and now - st["t2"] > 3:
             app.request_screenshot(out / "studio_visibility_map.png")
             st["phase"] = 3

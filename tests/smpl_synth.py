@@ -375,12 +375,12 @@ def write_gaussian_avatar(folder: Path, arrays: dict, T: int = 5):
 
 
 def train_and_evaluate(scene, config, steps: int = 2):
-    """A TrainingSession on ``scene``: ``steps`` steps, then an evaluation; returns (losses, rows, summary)."""
-    from reconstruct.train.session import TrainingSession
+    """A Trainer on ``scene``: ``steps`` steps, then an evaluation; returns (losses, rows, summary)."""
+    from reconstruct.train.trainer import Trainer
 
-    session = TrainingSession(scene, config)
-    losses = [session.step()["loss"] for _ in range(steps)]
-    rows, summary = session.evaluate()
+    trainer = Trainer(scene, config)
+    losses = [trainer.step()["loss"] for _ in range(steps)]
+    rows, summary = trainer.evaluate()
     return losses, rows, summary
 
 

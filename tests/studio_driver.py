@@ -26,18 +26,18 @@ def tiny_config():
 
 
 def state_of(app) -> dict:
-    s = app.session
-    c = app.controls.get()
-    snap = s.snapshots.latest()
+    s = app.status
+    c = app.trainer.controls.get()  # what the GUI handed to the trainer thread
+    snap = app.latest_snapshot()
     return {
-        "frame": app.frame_count, "fps": app.fps, "step": s.step_count, "stage": s.stage,
-        "num_frames": len(app.scene.frames), "mode": app.mode.value,
+        "frame": app.frame_count, "fps": app.fps, "step": s.step, "stage": s.stage,
+        "num_frames": len(app.scene.frames), "mode": app.view.mode.value,
         "controls": {"paused": c.paused, "frame_index": c.frame_index, "space": c.space, "stage2": c.stage2,
                      "stage2_version": c.stage2_version, "novel": c.novel},
         "snapshot": {"frame_index": snap.frame_index, "step": snap.step, "version": snap.version, "n": len(snap)},
         "drawn": list(app.last_drawn_snapshot) if app.last_drawn_snapshot else None,
-        "stage2_message": app.trainer.stage2_message, "error": app.trainer.error,
-        "export_message": app.export_message, "screenshots": app.saved_screenshots,
+        "stage2_message": s.stage2_message, "error": s.error,
+        "export_message": app.export.message, "screenshots": app.export.saved_screenshots,
     }
 
 

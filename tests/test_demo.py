@@ -26,13 +26,14 @@ def test_demo_runs_both_stages_and_writes_its_sheets(tmp_path):
 def test_comparison_sheet_has_a_row_per_avatar(tiny_scene, tiny_config, tmp_path):
     from app.comparison import write_comparison_sheet
     from reconstruct.stage2.config import Stage2Config
-    from reconstruct.stage2.session import Stage2Session
-    from reconstruct.train.session import TrainingSession
+    from reconstruct.stage2.plan import start_stage2
+    from reconstruct.train.trainer import Trainer
 
-    s1 = TrainingSession(tiny_scene, tiny_config)
+    t = Trainer(tiny_scene, tiny_config)
     for _ in range(3):
-        s1.step()
-    s2 = Stage2Session.from_stage1(s1, Stage2Config(iters=2, num_azimuths=8, prior_size=32))
+        t.step()
+    s1 = t.frozen()
+    start_stage2(t, Stage2Config(iters=2, num_azimuths=8, prior_size=32), allow_incomplete=True)
     one = iio.imread(write_comparison_sheet(s1, tmp_path / "one.png"))
-    two = iio.imread(write_comparison_sheet(s1, tmp_path / "two.png", others=[("stage II", s2)]))
+    two = iio.imread(write_comparison_sheet(s1, tmp_path / "two.png", others=[("stage II", t.avatar())]))
     assert two.shape[0] > one.shape[0] * 1.3 and two.shape[1] == one.shape[1]

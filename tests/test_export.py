@@ -11,12 +11,13 @@ import pytest
 
 @pytest.fixture
 def session(tiny_scene, tiny_config):
-    from reconstruct.train.session import TrainingSession
+    """A trained avatar (``TrainedAvatar``) to export."""
+    from reconstruct.train.trainer import Trainer
 
-    s = TrainingSession(tiny_scene, tiny_config)
+    t = Trainer(tiny_scene, tiny_config)
     for _ in range(3):
-        s.step()
-    return s
+        t.step()
+    return t.avatar()
 
 
 def _frames(path):

@@ -18,6 +18,7 @@ pytest.importorskip("transformers")
 
 from reconstruct.priors.base import CameraDelta, GuidanceInput, PriorError  # noqa: E402
 from reconstruct.priors.zero123 import Zero123Prior, detect_variant  # noqa: E402
+from reconstruct.schedule import Scheduled  # noqa: E402
 from reconstruct.priors.zero123_loader import (  # noqa: E402
     LFS_MAGIC, assemble, check_zero123_folder, load_zero123, write_projection)
 from reconstruct.priors.zero123_random import build_random, save_random_zero123  # noqa: E402
@@ -162,14 +163,14 @@ def test_fixed_noise_and_seed_are_deterministic(components, images):
 
 
 def test_max_step_schedule(components, images):
-    p = Zero123Prior(components=components, seed=0, max_step_end=0.3)
+    p = Zero123Prior(components=components, seed=0, max_step=[0, 0.98, 0.3, 1])  # threestudio's 4-list
     assert p.step_range(0.0) == (20, 980)
     assert p.step_range(1.0) == (20, 300)
     assert p.step_range(0.5) == (20, 640)
     ts = [p.loss(_inp(images[0], images[1], progress=1.0)).info["t"] for _ in range(4)]
     assert all(20 <= t <= 300 for t in ts)
-    q = Zero123Prior(components=components, max_step_schedule=lambda pr: 0.98 - 0.9 * pr)
-    assert q.step_range(1.0) == (20, 80)
+    q = Zero123Prior(components=components, max_step=Scheduled.ramp(0.5, 0.98, 0.08, 1.0))
+    assert q.step_range(0.25) == (20, 980) and q.step_range(1.0) == (20, 80)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])

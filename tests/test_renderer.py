@@ -260,9 +260,9 @@ def test_agreement_with_training_rasterizer(renderer, scene, bg):
 def test_agreement_on_an_avatar_snapshot(renderer, tiny_scene, tiny_config, bg):
     """A real avatar's Snapshot (Stage I after a few steps, observation space) drawn by the GL
     renderer and by the training rasterizer from the scene's evaluation cameras."""
-    from reconstruct.train.session import TrainingSession
+    from reconstruct.train.trainer import Trainer
 
-    session = TrainingSession(tiny_scene, tiny_config)
+    session = Trainer(tiny_scene, tiny_config)
     for _ in range(5):
         session.step()
     view = tiny_scene.eval_views[2]

@@ -50,7 +50,7 @@ def test_stage_all_then_resume_stage2(tmp_path, capsys):
     from reconstruct.train.checkpoint import load_checkpoint
 
     state = load_checkpoint(run / "checkpoint.pt")
-    assert state["stage"] == 2 and state["stage2"]["step"] == 9 and state["step"] == 15
+    assert state["stage"] == 2 and state["stage_step"] == 9 and state["step"] == 15
 
 
 def test_stage2_errors(tmp_path, capsys):

@@ -34,21 +34,20 @@ SCRIPT = textwrap.dedent("""
     state = {{"phase": 0, "wait": 0}}
 
     def script(app):
-        s, box = app.session, app.session.snapshots
-        snap = box.latest()
+        s, snap = app.status, app.latest_snapshot()
         p = state["phase"]
-        if p == 0 and s.step_count >= 3 and len(snap) and app.frame_count >= 30:
-            app.controls.update(paused=True)
-            result["step_before_pause"] = s.step_count
+        if p == 0 and s.step >= 3 and len(snap) and app.frame_count >= 30:
+            app.pause(True)
+            result["step_before_pause"] = s.step
             state["phase"] = 1
         elif p == 1:
             # the frame scrubber: what the Pose panel's slider does
             app.set_frame(2)
             state["phase"] = 2
-        elif p == 2 and snap.frame_index == 2 and snap.step == s.step_count \\
+        elif p == 2 and s.paused and snap.frame_index == 2 and snap.step == s.step \\
                 and app.last_drawn_snapshot and app.last_drawn_snapshot[0] == snap.version:
             result["published_frame"] = snap.frame_index
-            app.show_gui = False
+            app.view.show_gui = False
             app.request_screenshot(out + "_rgb.png")
             state["phase"] = 3
         elif p == 3:
@@ -56,13 +55,13 @@ SCRIPT = textwrap.dedent("""
             app.request_screenshot(out + "_vis.png")
             state["phase"] = 4
         elif p == 4:
-            app.show_gui = True
+            app.view.show_gui = True
             state["phase"] = 5
             state["wait"] = app.frame_count + 5
         elif p == 5 and app.frame_count >= state["wait"]:
-            result["step"] = s.step_count
+            result["step"] = s.step
             result["history"] = len(app.trainer.history())
-            result["error"] = app.trainer.error
+            result["error"] = s.error
             app.close()
         result["frames"] = app.frame_count + 1
         result["phase"] = state["phase"]
@@ -123,37 +122,36 @@ EXPORT_SCRIPT = textwrap.dedent("""
     state = {{"phase": 0}}
 
     def script(app):
-        s = app.session
+        s, ex = app.status, app.export
         p = state["phase"]
-        if p == 0 and s.step_count >= 2 and len(s.snapshots.latest()):
+        if p == 0 and s.step >= 2 and len(app.latest_snapshot()):
             # an export to a folder that does not exist: refused at once, training goes on
-            app.export_settings.out = out + "_missing/x.gif"
+            ex.settings.out = out + "_missing/x.gif"
             result["bad_job"] = app.start_export() is not None
-            result["bad_message"] = app.export_message
-            e = app.export_settings
+            result["bad_message"] = ex.message
+            e = ex.settings
             e.kind, e.frames, e.size, e.fps, e.out = "orbit", 6, 64, 12, out + "_orbit.gif"
             app.start_export()
-            result["step_at_export_start"] = s.step_count
+            result["step_at_export_start"] = s.step
             state["phase"] = 1
-        elif p == 1 and app.export_job.done:
-            result["orbit"] = str(app.export_job.result) if app.export_job.result else app.export_job.error
-            result["steps_during_export"] = s.step_count - result["step_at_export_start"]
-            e = app.export_settings
+        elif p == 1 and ex.job.done:
+            result["orbit"] = str(ex.job.result) if ex.job.result else ex.job.error
+            result["steps_during_export"] = s.step - result["step_at_export_start"]
+            e = ex.settings
             e.kind, e.frames, e.size, e.out = "walk", 5, 64, out + "_walk.mp4"
             app.start_export()
             state["phase"] = 2
-        elif p == 2 and app.export_job.done:
-            result["walk"] = str(app.export_job.result) if app.export_job.result else app.export_job.error
+        elif p == 2 and ex.job.done:
+            result["walk"] = str(ex.job.result) if ex.job.result else ex.job.error
             # a novel pose in the live view
             app.set_pose_source("arms_up")
             app.set_pose_frame(app.num_pose_frames - 1)
             state["phase"] = 3
         elif p == 3:
-            c = app.controls.get()
-            if c.novel == "arms_up" and app.trainer._published and app.trainer._published[0][2] == "arms_up" \\
-                    and app.trainer._published[0][3] == app.num_pose_frames - 1:
+            published = app.trainer.published
+            if published and published[0][2] == "arms_up" and published[0][3] == app.num_pose_frames - 1:
                 result["novel_published"] = True
-                result["step_before_close"] = s.step_count
+                result["step_before_close"] = s.step
                 app.close()  # mid-training: the trainer is not paused
         result["phase"] = state["phase"]
 
@@ -189,7 +187,7 @@ def test_studio_exports_while_training_and_saves_on_close(tmp_path):
     assert result["steps_during_export"] >= 1, result  # training did not wait for the export
     assert result["novel_published"]
     # closing the window mid-training saved a checkpoint first
-    state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
+    state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=True)
     assert state["step"] >= result["step_before_close"] >= 2
     assert "saved" in proc.stderr and "checkpoint.pt" in proc.stderr
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []  # no temporary files
@@ -214,5 +212,33 @@ def test_scene_that_fails_to_load_is_shown_in_the_window(tmp_path):
     img = np.asarray(Image.open(tmp_path / "error.png").convert("RGB"), np.int32)
     assert img.shape == (400, 640, 3)
     # the error text is drawn in the window (reddish text over the dark window)
+    red = (img[..., 0] > 200) & (img[..., 1] < 160) & (img[..., 2] < 150)
+    assert red.sum() > 100, red.sum()
+
+
+@pytest.mark.gl
+def test_a_run_folder_in_use_is_refused_in_the_window(tmp_path):
+    """The studio takes the run folder's lock: with another trainer holding it, the window shows
+    why and exits 2, and the folder is left as it was."""
+    from PIL import Image
+
+    from reconstruct.run_folder import RunFolder
+
+    run = RunFolder(tmp_path / "run")
+    code = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT)!r})
+        from app.studio.window import run_studio
+        sys.exit(run_studio({SCENE!r}, {str(run.path)!r}, size=(640, 400), max_frames=5,
+                            screenshot={str(tmp_path / 'locked.png')!r}, progress=False))
+    """)
+    with run.lock():
+        before = sorted(p.name for p in run.path.iterdir())
+        proc = subprocess.run(["xvfb-run", "-a", sys.executable, "-c", code], capture_output=True, text=True,
+                              check=False, timeout=120, cwd=str(tmp_path))
+        assert sorted(p.name for p in run.path.iterdir()) == before
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "could not open the run folder" in proc.stderr and f"pid {os.getpid()}" in proc.stderr
+    img = np.asarray(Image.open(tmp_path / "locked.png").convert("RGB"), np.int32)
     red = (img[..., 0] > 200) & (img[..., 1] < 160) & (img[..., 2] < 150)
     assert red.sum() > 100, red.sum()

@@ -1,12 +1,9 @@
-"""The studio's trainer thread without a window: Stage II start and settings applied between steps
-(with a small stub Stage2Session, so the GUI logic is tested apart from Stage II itself), frozen
-copies for exports, novel poses in the live view."""
+"""The studio's trainer thread without a window: Stage II start and settings applied between steps,
+frozen copies for exports, novel poses in the live view, the published status."""
 
 from __future__ import annotations
 
-import sys
 import time
-import types
 
 import pytest
 import torch
@@ -22,124 +19,101 @@ def _wait(cond, timeout=60.0, what=""):
 
 
 @pytest.fixture
-def stub_stage2(monkeypatch):
-    from reconstruct.train.session import TrainingSession
-
-    class StubStage2(TrainingSession):
-        stage = 2
-
-        @classmethod
-        def from_stage1(cls, session, config):
-            new = cls.__new__(cls)
-            new.__dict__.update(session.__dict__)
-            new.stage2, new.stage2_step, new.reselected, new.from_session = config, 0, 0, session
-            return new
-
-        def step(self):
-            out = super().step()
-            self.stage2_step += 1
-            return out
-
-        def reselect_views(self):
-            self.reselected += 1
-
-        selected_views = []
-
-    module = types.ModuleType("stub_stage2_session")
-    module.Stage2Session = StubStage2
-    monkeypatch.setitem(sys.modules, "stub_stage2_session", module)
-    monkeypatch.setattr("app.studio.trainer_thread.STAGE2_MODULE", "stub_stage2_session")
-    return StubStage2
-
-
-@pytest.fixture
 def trainer(tiny_scene, tiny_config):
     from app.studio.trainer_thread import TrainerThread
-    from reconstruct.train.session import TrainingSession
+    from reconstruct.train.trainer import Trainer
 
     tiny_config.iters = 100000
-    t = TrainerThread(TrainingSession(tiny_scene, tiny_config), publish_every=2)
+    t = TrainerThread(Trainer(tiny_scene, tiny_config), publish_every=2)
     yield t
     t.stop(save=False)
 
 
-def test_stage2_start_and_settings_between_steps(trainer, stub_stage2):
+SMALL_STAGE2 = {"num_azimuths": 8, "prior_size": 32, "iters": 100000}
 
-    s1 = trainer.session
-    assert s1.stage == 1
+
+def test_stage2_start_and_settings_between_steps(trainer):
+    """The GUI's actions reach the trainer between steps: Stage II starts on the same avatar state
+    with the panel's settings, ratio changes go into the running plan, a threshold change re-runs
+    view selection, a bad combination is refused as a whole with a message."""
+    t = trainer.trainer
+    state = t.state
+    assert trainer.status().stage == 1
     settings = {"canonical_ratio": 0.8, "given_view_ratio": 0.3, "visibility_threshold": 0.5, "lambda_sds": 0.2,
-                "sds_t0": 50.0, "sds_k": 20.0, "progressive": True, "prior": "builtin", "prior_path": None}
-    trainer.controls.update(stage2=dict(settings), stage2_version=1)
+                "sds_t0": 50.0, "sds_k": 20.0, "progressive": True, "prior": "builtin", "prior_path": None,
+                **SMALL_STAGE2}
+    trainer.set_stage2_settings(settings)
     trainer.start()
-    _wait(lambda: s1.step_count >= 2, what="Stage I steps")
-    trainer.controls.update(start_stage2=True)
-    _wait(lambda: trainer.session.stage == 2, what="Stage II")
-    s2 = trainer.session
-    assert s2.from_session is s1 and s2.model is s1.model
-    cfg = s2.stage2
+    _wait(lambda: trainer.status().step >= 2, what="Stage I steps")
+    trainer.start_stage2()
+    _wait(lambda: trainer.status().stage == 2, what="Stage II")
+    assert t.state is state  # the same avatar, a new plan
+    cfg = t.plan.settings
     assert (cfg.canonical_ratio, cfg.given_view_ratio, cfg.lambda_sds, cfg.sds_t0, cfg.sds_k) == (0.8, 0.3, 0.2, 50.0, 20.0)
-    _wait(lambda: s2.stage2_step >= 2 and trainer.history()[-1].stage == 2, what="Stage II steps")
-    assert s2.snapshots.latest().step >= s1.step_count  # the new session publishes
+    _wait(lambda: trainer.status().stage_step >= 2 and trainer.history()[-1].stage == 2, what="Stage II steps")
+    assert trainer.latest_snapshot().stage == 2
+    assert trainer.status().candidate_views == len(t.plan.selected_views) == 9 * (1 + len(t.plan.reference_frames()))
 
-    # a ratio change: copied into the same config object, no view re-selection
-    trainer.controls.update(stage2={**settings, "canonical_ratio": 0.25}, stage2_version=2)
-    _wait(lambda: cfg.canonical_ratio == 0.25, what="ratio")
-    assert s2.stage2 is cfg and s2.reselected == 0
+    # a ratio change: into the running plan, no view re-selection
+    spaces = t.plan.spaces
+    trainer.set_stage2_settings({**settings, "canonical_ratio": 0.25})
+    _wait(lambda: t.plan.settings.canonical_ratio == 0.25, what="ratio")
+    assert t.plan.spaces is spaces
     # a threshold change re-runs view selection (on the trainer thread)
-    trainer.controls.update(stage2={**settings, "canonical_ratio": 0.25, "visibility_threshold": 0.3},
-                            stage2_version=3)
-    _wait(lambda: s2.reselected == 1, what="reselect_views")
-    assert cfg.visibility_threshold == 0.3
-    # a bad combination is refused as a whole, with a message; the running config is unchanged
-    trainer.controls.update(stage2={**settings, "given_view_ratio": 1.5, "canonical_ratio": 0.9}, stage2_version=4)
-    _wait(lambda: trainer.stage2_message is not None, what="refusal")
-    assert "given_view_ratio" in trainer.stage2_message and cfg.canonical_ratio == 0.25
+    trainer.set_stage2_settings({**settings, "canonical_ratio": 0.25, "visibility_threshold": 0.3})
+    _wait(lambda: t.plan.spaces is not spaces, what="view selection")
+    assert t.plan.settings.visibility_threshold == 0.3
+    # a bad combination is refused as a whole, with a message; the running settings are unchanged
+    trainer.set_stage2_settings({**settings, "given_view_ratio": 1.5, "canonical_ratio": 0.9})
+    _wait(lambda: trainer.status().stage2_message is not None, what="refusal")
+    assert "given_view_ratio" in trainer.status().stage2_message and t.plan.settings.canonical_ratio == 0.25
     # starting again says so
-    trainer.controls.update(start_stage2=True)
-    _wait(lambda: trainer.stage2_message == "Stage II is already running", what="already running")
-    assert trainer.error is None
+    trainer.start_stage2()
+    _wait(lambda: trainer.status().stage2_message == "Stage II is already running", what="already running")
+    assert trainer.status().error is None
 
 
-def test_stage2_missing_module_is_a_message(trainer, monkeypatch):
-    monkeypatch.setattr("app.studio.trainer_thread.STAGE2_MODULE", "reconstruct.stage2.no_such_module")
-    trainer.controls.update(start_stage2=True)
+def test_stage2_that_cannot_start_is_a_message(trainer):
+    trainer.set_stage2_settings({"prior": "zero123", "prior_path": "/no/such/zero123", **SMALL_STAGE2})
     trainer.start()
-    _wait(lambda: trainer.stage2_message is not None, what="message")
-    assert "not available" in trainer.stage2_message
-    s = trainer.session
-    n = s.step_count
-    _wait(lambda: s.step_count > n, what="Stage I going on")
-    assert trainer.session.stage == 1 and trainer.error is None
+    _wait(lambda: trainer.status().step >= 1, what="a step")
+    trainer.start_stage2()
+    _wait(lambda: trainer.status().stage2_message is not None, what="message")
+    assert "could not start" in trainer.status().stage2_message and "/no/such/zero123" in trainer.status().stage2_message
+    n = trainer.status().step
+    _wait(lambda: trainer.status().step > n, what="Stage I going on")
+    assert trainer.status().stage == 1 and trainer.status().error is None
 
 
 def test_frozen_copy_between_steps_does_not_follow_training(trainer):
-    from app.export import frozen_copy
+    from reconstruct.train.trainer import Trainer
 
     trainer.start()
-    _wait(lambda: trainer.session.step_count >= 1, what="a step")
-    frozen = trainer.call_between_steps(frozen_copy).result(timeout=60)
-    before = [p.detach().clone() for p in frozen.model.parameters()]
-    step = trainer.session.step_count
-    _wait(lambda: trainer.session.step_count >= step + 3, what="more steps")
-    assert all(torch.equal(a, b) for a, b in zip(before, frozen.model.parameters()))
-    live = dict(trainer.session.model.named_parameters())
-    assert any(not torch.equal(p, live[k]) for k, p in frozen.model.named_parameters())
-    assert frozen.run_dir is None and frozen.body is trainer.session.body
+    _wait(lambda: trainer.status().step >= 1, what="a step")
+    frozen = trainer.call_between_steps(Trainer.frozen).result(timeout=60)
+    model = frozen.state.model
+    before = [p.detach().clone() for p in model.parameters()]
+    step = trainer.status().step
+    _wait(lambda: trainer.status().step >= step + 3, what="more steps")
+    assert all(torch.equal(a, b) for a, b in zip(before, model.parameters()))
+    live = dict(trainer.trainer.model.named_parameters())
+    assert any(not torch.equal(p, live[k]) for k, p in model.named_parameters())
+    assert frozen.body is trainer.trainer.state.body and frozen.step <= trainer.status().step
     trainer.stop(save=False)
     # after the loop ended, calls run at once on the caller's thread
-    assert trainer.call_between_steps(lambda s: s.step_count).result(timeout=5) == trainer.session.step_count
+    assert trainer.call_between_steps(lambda t: t.step_count).result(timeout=5) == trainer.trainer.step_count
 
 
 def test_novel_pose_published_in_live_view(trainer):
     import numpy as np
 
-    trainer.controls.update(paused=True)
+    trainer.pause()
     trainer.start()
-    _wait(lambda: len(trainer.session.snapshots.latest()) > 0, what="first snapshot")
-    video = trainer.session.snapshots.latest()
-    trainer.controls.update(novel="arms_up", novel_index=trainer.novel_length - 1)
-    _wait(lambda: trainer.session.snapshots.latest().version != video.version, what="novel snapshot")
-    novel = trainer.session.snapshots.latest()
+    _wait(lambda: len(trainer.latest_snapshot()) > 0, what="first snapshot")
+    video = trainer.latest_snapshot()
+    trainer.set_view(novel="arms_up", novel_index=trainer.novel_length - 1)
+    _wait(lambda: trainer.latest_snapshot().version != video.version, what="novel snapshot")
+    novel = trainer.latest_snapshot()
     # arms up: the highest Gaussians are now the hands, well above the head of the video pose
     assert novel.means[:, 2].max() > video.means[:, 2].max() + 0.1
     assert np.allclose(novel.scales, video.scales)
@@ -148,9 +122,9 @@ def test_novel_pose_published_in_live_view(trainer):
 def test_reopened_run_shows_its_logged_curves(tiny_scene, tiny_config, tmp_path):
     """The training panel's plots of a reopened run start from its metrics log, not empty."""
     from app.studio.trainer_thread import TrainerThread
-    from reconstruct.train.session import TrainingSession
+    from reconstruct.train.trainer import Trainer
 
-    s = TrainingSession(tiny_scene, tiny_config, tmp_path)
+    s = Trainer(tiny_scene, tiny_config, tmp_path)
     for _ in range(4):
         s.advance(log_every=2)
     s.maybe_evaluate(force=True)
@@ -161,7 +135,7 @@ def test_reopened_run_shows_its_logged_curves(tiny_scene, tiny_config, tmp_path)
 
 def test_sds_curve_follows_the_stage2_schedule():
     """The Stage II panel's λ_SDS curve is Eq. 14 over schedule epochs of the configured length."""
-    from app.studio.panels import sds_curve
+    from app.studio.panels.stage2 import sds_curve
 
     settings = {"lambda_sds": 0.3, "sds_t0": 100.0, "sds_k": 100.0, "progressive": True}
     x, y = sds_curve(settings, 800, points=801)  # default epoch_steps 2: halved at 400 and 600

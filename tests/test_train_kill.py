@@ -46,7 +46,9 @@ def test_sigkill_then_resume(tmp_path, monkeypatch):
     lines = (run / "metrics.jsonl").read_text().splitlines()
     for line in lines[:-1]:
         json.loads(line)
-    assert json.loads((run / "run.json").read_text())["scene"] == SCENE
+    from reconstruct.data.load import canonical_scene_spec
+
+    assert json.loads((run / "run.json").read_text())["scene"] == canonical_scene_spec(SCENE)
     step = state["step"]
 
     # resume: same parameters as the checkpoint, then continue to a fixed step count
@@ -64,16 +66,17 @@ def test_sigkill_then_resume(tmp_path, monkeypatch):
 
 
 def test_resumed_parameters_equal_checkpoint(tiny_scene, tiny_config, tmp_path):
-    from reconstruct.train.session import TrainingSession
+    from reconstruct.run_folder import RunFolder
+    from reconstruct.train.trainer import Trainer
 
-    s = TrainingSession(tiny_scene, tiny_config, tmp_path)
+    s = Trainer(tiny_scene, tiny_config, tmp_path)
     for _ in range(3):
         s.step()
     path = s.save()
     state = load_checkpoint(path)
-    r = TrainingSession.resume(tiny_scene, tmp_path)
+    r = RunFolder(tmp_path).resume(tiny_scene)
     for k, v in r.model.state_dict().items():
-        assert torch.equal(v, state["model"][k])
+        assert torch.equal(v, state["avatar"]["model"][k])
     assert r.step_count == 3 and r.elapsed == pytest.approx(state["elapsed"])
 
 
@@ -134,5 +137,5 @@ def test_sigkill_at_random_moments_loses_nothing(tmp_path, capsys):
     assert sorted(p.name for p in run.iterdir() if p.name.startswith(".") and p.name != ".lock") == []  # no stale temporaries (.lock: the run lock, kept)
     resumed, uninterrupted = load_checkpoint(ckpt), load_checkpoint(straight / "checkpoint.pt")
     assert resumed["step"] == uninterrupted["step"] == target
-    for k, v in uninterrupted["model"].items():
-        assert torch.equal(resumed["model"][k], v), k
+    for k, v in uninterrupted["avatar"]["model"].items():
+        assert torch.equal(resumed["avatar"]["model"][k], v), k

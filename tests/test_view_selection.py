@@ -53,14 +53,14 @@ def test_visibility_ratio_extremes_and_threshold_checks():
 
 
 def test_trained_stage1_avatar_has_unseen_back_views(tiny_scene, tiny_config):
-    from reconstruct.train.session import TrainingSession
+    from reconstruct.train.trainer import Trainer
 
-    s = TrainingSession(tiny_scene, tiny_config)
+    s = Trainer(tiny_scene, tiny_config)
     for _ in range(12):
         s.step()
     canon = s.model.canonical()
     views = select_views(canon.means.detach(), torch.tensor([[1.0, 0, 0, 0]]).expand(len(canon.means), 4),
-                         canon.scales.detach(), torch.ones(len(canon.means)), s.seen, canon.means.mean(0).tolist(),
+                         canon.scales.detach(), torch.ones(len(canon.means)), s.state.seen, canon.means.mean(0).tolist(),
                          ViewSelectionConfig(num_azimuths=8, distance=3.0, size=64))
     by_az = {round(v.azimuth_deg): v for v in views if v.elevation_deg == 0}
     assert not by_az[0].unseen and by_az[180].unseen

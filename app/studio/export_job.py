@@ -3,8 +3,8 @@
 Three threads take part:
 
 * the trainer thread hands over a frozen copy of the avatar between two steps
-  (``TrainerThread.call_between_steps(app.export.frozen_copy)``), so the export shows one state of
-  the avatar while training goes on;
+  (``TrainerThread.call_between_steps(Trainer.frozen)``), so the export shows one state of the
+  avatar while training goes on;
 * a worker thread builds the export plan from that copy, poses the avatar for each frame (torch),
   passes (snapshot, camera) to the GL thread and writes the images it gets back (imageio, into a
   temporary file renamed over the target at the end: ``atomic_output``);
@@ -22,7 +22,7 @@ import queue
 import threading
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -56,15 +56,26 @@ class ExportSettings:
         size = (self.size, self.size) if self.kind == "orbit" else None
         return check_destination(self.out, suffixes=VIDEO_SUFFIXES, size=size)
 
-    def plan(self, session):
+    def plan(self, avatar):
+        """The export plan for a ``TrainedAvatar``."""
         from app.export import plan_novel, plan_orbit, plan_poses
 
         if self.kind == "orbit":
-            return plan_orbit(session, self.out, frames=self.frames, size=self.size, fps=self.fps,
+            return plan_orbit(avatar, self.out, frames=self.frames, size=self.size, fps=self.fps,
                               frame_index=self.frame_index)
         if self.kind == "poses":
-            return plan_poses(session, self.out, size=self.size, fps=self.fps)
-        return plan_novel(session, self.out, self.kind, frames=self.frames, size=self.size, fps=self.fps)
+            return plan_poses(avatar, self.out, size=self.size, fps=self.fps)
+        return plan_novel(avatar, self.out, self.kind, frames=self.frames, size=self.size, fps=self.fps)
+
+
+@dataclass
+class ExportPanelState:
+    """The export panel's settings, the job in flight and what it last said."""
+
+    settings: ExportSettings = field(default_factory=ExportSettings)
+    job: ExportJob | None = None
+    message: str | None = None
+    saved_screenshots: list[str] = field(default_factory=list)
 
 
 class ExportJob:

@@ -1,22 +1,22 @@
-"""TrainerThread: runs ``TrainingSession.step()`` in a background thread and publishes snapshots.
+"""TrainerThread: runs a ``Trainer`` in a background thread and publishes what the GUI draws.
 
-The GUI never blocks training: it only writes a small lock-protected ``Controls`` record and reads
-``session.snapshots.latest()`` and copies of the history. Everything that changes the session
-happens on the trainer thread between steps: Stage II settings from ``Controls.stage2`` are copied
-into ``session.stage2``, "Start Stage II" swaps ``self.session`` for a ``Stage2Session`` taking over
-the Stage I one, and ``call_between_steps`` runs a function on the session (e.g. a frozen copy of
-the avatar for an export). The GUI must read the session through ``trainer.session``."""
+The GUI never blocks training and never touches the trainer: it calls the thread's action
+methods (``pause``, ``single_step``, ``request_save``, ``start_stage2``, ``set_stage2_settings``,
+``set_view``), which only write a small lock-protected ``Controls`` record, and it reads
+``status()`` (a ``TrainerStatus`` the thread publishes after each step), ``history()`` and the
+latest snapshot. Everything that changes the trainer happens on the trainer thread between
+steps: Stage II settings, the switch to the Stage II plan, and ``call_between_steps`` functions
+(e.g. a frozen copy of the avatar for an export)."""
 
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import queue
 import threading
 import time
 import traceback
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 SPACES = ("observation", "canonical")
@@ -24,19 +24,19 @@ SPACES = ("observation", "canonical")
 
 @dataclass
 class Controls:
-    """What the GUI asks of the trainer. Use ``get()`` / ``update()``: both take the lock."""
+    """What the GUI asks of the trainer thread (written by the action methods, under the lock)."""
 
     paused: bool = False
     single_step: bool = False  # one step while paused (cleared by the trainer)
     space: str = "observation"
     frame_index: int = 0
     save: bool = False  # save a checkpoint now (cleared by the trainer)
-    start_stage2: bool = False  # take the Stage I session over into Stage II (cleared by the trainer)
-    stage2: dict = dataclasses.field(default_factory=dict)  # Stage2Config fields the GUI sets (replace, never mutate)
+    start_stage2: bool = False  # switch to the Stage II plan (cleared by the trainer)
+    stage2: dict = field(default_factory=dict)  # Stage2Config fields the GUI sets (replaced, never mutated)
     stage2_version: int = 0  # bumped with each change of ``stage2``
     novel: str = ""  # "" (the video's poses) or a novel pose sequence shown instead (walk, arms_up)
     novel_index: int = 0  # frame of the novel sequence
-    _lock: threading.Lock = dataclasses.field(default_factory=threading.Lock, repr=False, compare=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def get(self) -> Controls:
         with self._lock:
@@ -59,6 +59,31 @@ class Controls:
             return bool(value)
 
 
+@dataclass(frozen=True)
+class TrainerStatus:
+    """The trainer as the panels see it, published by the trainer thread (read-only)."""
+
+    stage: int = 1
+    step: int = 0
+    stage_step: int = 0
+    planned_steps: int = 0
+    planned_minutes: float | None = None
+    elapsed: float = 0.0
+    done: bool = False
+    num_gaussians: int = 0
+    has_run_folder: bool = False
+    metrics: dict = field(default_factory=dict)  # latest numbers (loss, seen/unseen PSNR, λ_SDS, ...)
+    stage2: dict | None = None  # the running Stage II plan's settings
+    unseen_views: int = 0
+    candidate_views: int = 0
+    # the thread's own state
+    paused: bool = False
+    its: float = 0.0  # steps per second (smoothed)
+    error: str | None = None  # the traceback when the loop died
+    stage2_message: str | None = None  # why Stage II did not start / a setting was refused
+    last_saved: str | None = None
+
+
 class HistoryRow(NamedTuple):
     elapsed: float
     step: int
@@ -68,38 +93,66 @@ class HistoryRow(NamedTuple):
     stage: int = 1
 
 
-STAGE2_MODULE = "reconstruct.stage2.session"
-STAGE2_SETTINGS = ("given_view_ratio", "canonical_ratio", "lambda_sds", "sds_t0", "sds_k", "progressive",
-                   "visibility_threshold", "prior", "prior_path")
-
-
 class TrainerThread:
-    """Background training loop for one ``TrainingSession``."""
+    """Background training loop for one ``Trainer``. ``run_folder``: where Stage II is recorded
+    when it starts (``RunFolder.start_stage2``); the caller holds its lock."""
 
-    def __init__(self, session, controls: Controls | None = None, *, publish_every: int = 5,
-                 log_every: int = 25, idle_sleep: float = 0.02) -> None:
-        self.session = session
+    def __init__(self, trainer, controls: Controls | None = None, *, run_folder=None, publish_every: int = 5,
+                 log_every: int = 25, idle_sleep: float = 0.02, novel_frames: int = 30) -> None:
+        self.trainer = trainer
+        self.run_folder = run_folder
         self.controls = controls or Controls()
         self.publish_every = max(1, int(publish_every))
         self.log_every = max(1, int(log_every))
         self.idle_sleep = idle_sleep
-        self._history: list[HistoryRow] = self._logged_history(session)
+        self._history: list[HistoryRow] = self._logged_history(trainer)
         self._hist_lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._published: tuple | None = None  # (space, frame, step) of the last snapshot
+        self.published: tuple | None = None  # (view key, step) of the last snapshot published
         self.error: str | None = None  # traceback text if the loop died
         self.last_saved: str | None = None
         self.its = 0.0  # steps per second (smoothed)
         self.stage2_message: str | None = None  # why Stage II did not start / a setting was refused
         self._stage2_applied = self.controls.get().stage2_version
         self._calls: queue.SimpleQueue = queue.SimpleQueue()
-        self.novel_frames = 30  # length of the novel pose sequences shown in the live view
+        self.novel_frames = novel_frames  # length of the novel pose sequences shown in the live view
         self._novel_cache: dict[str, list] = {}
-        n = len(session.scene.frames)
+        self._status = self._make_status()
+        n = len(trainer.scene.frames)
         self.controls.update(frame_index=min(max(0, self.controls.get().frame_index), n - 1))
 
-    # ----- GUI side ---------------------------------------------------------------------------
+    # ----- actions (any thread) ---------------------------------------------------------------
+    def pause(self, paused: bool = True) -> None:
+        self.controls.update(paused=paused)
+
+    def single_step(self) -> None:
+        self.controls.update(single_step=True)
+
+    def request_save(self) -> None:
+        self.controls.update(save=True)
+
+    def start_stage2(self) -> None:
+        self.controls.update(start_stage2=True)
+
+    def set_stage2_settings(self, settings: dict) -> None:
+        """Stage II settings (Stage2Config fields): used when Stage II starts, applied to the
+        running plan between steps after that."""
+        v = self.controls.get().stage2_version + 1
+        self.controls.update(stage2=dict(settings), stage2_version=v)
+
+    def set_view(self, **kw) -> None:
+        """What the live snapshot shows: ``space``, ``frame_index``, ``novel``, ``novel_index``."""
+        self.controls.update(**kw)
+
+    # ----- what the GUI reads ---------------------------------------------------------------
+    def status(self) -> TrainerStatus:
+        """The latest published status (the trainer thread makes a new one after each step)."""
+        return self._status
+
+    def latest_snapshot(self):
+        return self.trainer.snapshots.latest()
+
     def history(self) -> list[HistoryRow]:
         with self._hist_lock:
             return list(self._history)
@@ -112,6 +165,7 @@ class TrainerThread:
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
+    # ----- lifetime -------------------------------------------------------------------------
     def start(self) -> TrainerThread:
         if self._thread is not None:
             raise RuntimeError("TrainerThread already started")
@@ -120,11 +174,11 @@ class TrainerThread:
         return self
 
     def call_between_steps(self, fn) -> Future:
-        """Run ``fn(session)`` on the trainer thread between two steps (right away, on the calling
+        """Run ``fn(trainer)`` on the trainer thread between two steps (right away, on the calling
         thread, when the loop is not running). The result comes back through the Future."""
         fut: Future = Future()
         if not self.running:
-            self._call(fn, fut, self.session)
+            self._call(fn, fut, self.trainer)
         else:
             self._calls.put((fn, fut))
             if not self.running:  # the loop ended meanwhile: nobody will take it
@@ -132,21 +186,22 @@ class TrainerThread:
         return fut
 
     def stop(self, save: bool = True, timeout: float = 60.0) -> None:
-        """Stop the loop (after the current step) and save a checkpoint when the session has a run folder."""
+        """Stop the loop (after the current step) and save a checkpoint when the trainer has a run folder."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout)
         self._drain_calls()
-        if save and self.session.run_dir is not None and self.session.step_count > 0:
-            self.last_saved = str(self.session.save())
+        if save and self.trainer.run_dir is not None and self.trainer.step_count > 0:
+            self.last_saved = str(self.trainer.save())
+        self._status = self._make_status()
 
     # ----- trainer side -----------------------------------------------------------------------
     @staticmethod
-    def _call(fn, fut: Future, session=None) -> None:
+    def _call(fn, fut: Future, trainer=None) -> None:
         if not fut.set_running_or_notify_cancel():
             return
         try:
-            fut.set_result(fn(session))
+            fut.set_result(fn(trainer))
         except BaseException as exc:  # noqa: BLE001 -- handed to the caller
             fut.set_exception(exc)
 
@@ -156,17 +211,31 @@ class TrainerThread:
                 fn, fut = self._calls.get_nowait()
             except queue.Empty:
                 return
-            self._call(fn, fut, self.session)
+            self._call(fn, fut, self.trainer)
+
+    def _make_status(self) -> TrainerStatus:
+        t = self.trainer
+        plan = t.plan
+        s = plan.settings
+        stage2 = s.to_dict() if t.stage == 2 else None
+        views = getattr(plan, "selected_views", [])
+        return TrainerStatus(
+            stage=t.stage, step=t.step_count, stage_step=t.stage_step, planned_steps=s.iters,
+            planned_minutes=s.minutes, elapsed=t.elapsed, done=t.done, num_gaussians=t.state.num_gaussians,
+            has_run_folder=t.run_dir is not None,
+            metrics={k: v for k, v in t.latest.items() if isinstance(v, (int, float))},
+            stage2=stage2, unseen_views=sum(v.unseen for v in views), candidate_views=len(views),
+            paused=self.controls.get().paused, its=self.its, error=self.error, stage2_message=self.stage2_message,
+            last_saved=self.last_saved)
 
     @staticmethod
-    def _logged_history(session) -> list[HistoryRow]:
+    def _logged_history(trainer) -> list[HistoryRow]:
         """A reopened run's curves so far, from its metrics log (training losses and evaluations)."""
-        log = getattr(session, "log", None)
-        if log is None:
+        if trainer.log is None:
             return []
         rows, seen, unseen, nan = [], float("nan"), float("nan"), float("nan")
         try:
-            records = log.read()
+            records = trainer.log.read()
         except (OSError, ValueError):
             return []
         for r in records:
@@ -180,11 +249,11 @@ class TrainerThread:
         return rows
 
     def _record(self) -> None:
-        s = self.session
-        lat = s.latest
+        t = self.trainer
+        lat = t.latest
         nan = float("nan")
-        row = HistoryRow(float(s.elapsed), int(s.step_count), float(lat.get("loss", nan)),
-                         float(lat.get("seen_psnr", nan)), float(lat.get("unseen_psnr", nan)), s.stage)
+        row = HistoryRow(float(t.elapsed), int(t.step_count), float(lat.get("loss", nan)),
+                         float(lat.get("seen_psnr", nan)), float(lat.get("unseen_psnr", nan)), t.stage)
         with self._hist_lock:
             self._history.append(row)
 
@@ -196,12 +265,13 @@ class TrainerThread:
         if name not in self._novel_cache:
             from reconstruct.body.novel_poses import novel_pose_sequence
 
-            s = self.session
-            self._novel_cache[name] = novel_pose_sequence(s.body, name, self.novel_frames, base=s.scene.frames[0].pose)
+            t = self.trainer
+            self._novel_cache[name] = novel_pose_sequence(t.state.body, name, self.novel_frames,
+                                                          base=t.scene.frames[0].pose)
         return self._novel_cache[name]
 
     def _view_key(self, c: Controls) -> tuple:
-        frame = min(max(0, int(c.frame_index)), len(self.session.scene.frames) - 1)
+        frame = min(max(0, int(c.frame_index)), len(self.trainer.scene.frames) - 1)
         if c.novel:
             return ("observation", frame, c.novel, int(c.novel_index) % self.novel_frames)
         return (c.space, frame, "", 0)
@@ -209,94 +279,90 @@ class TrainerThread:
     def _publish(self, c: Controls) -> None:
         key = self._view_key(c)
         space, frame, novel, k = key
+        t = self.trainer
         if novel:
-            from app.export import _snapshot_at_pose
-
-            self.session.snapshots.publish(_snapshot_at_pose(self.session, self._novel_poses(novel)[k], frame))
+            t.snapshots.publish(t.avatar().snapshot_at_pose(self._novel_poses(novel)[k], frame))
         else:
-            self.session.publish(space, frame)
-        self._published = (key, self.session.step_count)
+            t.publish(space, frame)
+        self.published = (key, t.step_count)
+
+    def _stage2_config(self, settings: dict):
+        from reconstruct import config as config_layer
+        from reconstruct.stage2.config import Stage2Config
+
+        return config_layer.from_dict(Stage2Config, settings, "Stage II")
 
     def _start_stage2(self, c: Controls) -> None:
-        s = self.session
-        if s.stage >= 2:
+        t = self.trainer
+        if t.stage >= 2:
             self.stage2_message = "Stage II is already running"
             return
         try:
-            from reconstruct.stage2.config import Stage2Config
-
-            config = Stage2Config(**{k: v for k, v in c.stage2.items() if k in STAGE2_SETTINGS})
+            config = self._stage2_config(c.stage2)
         except (TypeError, ValueError) as exc:
             self.stage2_message = f"Stage II settings refused: {exc}"
             return
         try:
-            module = importlib.import_module(STAGE2_MODULE)
-            factory = module.Stage2Session.from_stage1
-        except (ImportError, AttributeError) as exc:
-            self.stage2_message = (f"Stage II is not available in this version ({STAGE2_MODULE}: "
-                                   f"{type(exc).__name__}: {exc})")
-            return
-        try:
-            new = factory(s, config)
+            if self.run_folder is not None:
+                self.run_folder.start_stage2(t, config, allow_incomplete=True)
+            else:
+                from reconstruct.stage2.plan import start_stage2
+
+                start_stage2(t, config, allow_incomplete=True)
         except Exception as exc:  # noqa: BLE001 -- shown in the panel; Stage I goes on
             self.stage2_message = f"Stage II could not start: {type(exc).__name__}: {exc}"
             return
-        self.session = new
-        self._stage2_applied = c.stage2_version  # the settings went into the new session's config
+        self._stage2_applied = c.stage2_version  # the settings went into the new plan
         self.stage2_message = None
-        self._published = None
+        self.published = None
 
     def _apply_stage2_settings(self, c: Controls) -> None:
-        """Copy the GUI's Stage II settings into ``session.stage2`` (validated as a whole first);
-        re-run view selection when the visibility threshold changed."""
+        """The GUI's Stage II settings for the running plan, validated as a whole first; view
+        selection is redone when the visibility threshold changed."""
         self._stage2_applied = c.stage2_version
-        s = self.session
-        cfg = s.stage2
-        fields = {k: v for k, v in c.stage2.items() if k in STAGE2_SETTINGS}
+        t = self.trainer
         try:
-            dataclasses.replace(cfg, **fields)  # validates the combination
+            config = self._stage2_config({**t.plan.settings.to_dict(), **c.stage2})
         except (TypeError, ValueError) as exc:
             self.stage2_message = f"Stage II settings refused: {exc}"
             return
-        old_threshold = cfg.visibility_threshold
-        for k, v in fields.items():
-            setattr(cfg, k, v)
+        t.plan.update_settings(config, t.state)
         self.stage2_message = None
-        if cfg.visibility_threshold != old_threshold:
-            s.reselect_views()
 
     def _between_steps(self, c: Controls) -> Controls:
         self._drain_calls()
         if self.controls.take("start_stage2"):
             self._start_stage2(c)
-        if self.session.stage >= 2 and c.stage2_version != self._stage2_applied:
+        if self.trainer.stage >= 2 and c.stage2_version != self._stage2_applied:
             self._apply_stage2_settings(c)
         return c
 
     def _run(self) -> None:
-        s = self.session
+        t = self.trainer
         try:
-            s.maybe_evaluate(force=s.step_count == 0)
+            t.maybe_evaluate(force=t.stage_step == 0)
             self._record()
             self._publish(self.controls.get())
+            stage = t.stage
             t_last = time.perf_counter()
             while not self._stop.is_set():
                 c = self._between_steps(self.controls.get())
-                if self.session is not s:  # Stage I -> Stage II
-                    s = self.session
+                if t.stage != stage:  # Stage I -> Stage II
+                    stage = t.stage
                     self._record()
                     self._publish(c)
-                if self.controls.take("save") and s.run_dir is not None:
-                    self.last_saved = str(s.save())
-                want_step = (not c.paused and not s.done) or self.controls.take("single_step")
+                if self.controls.take("save") and t.run_dir is not None:
+                    self.last_saved = str(t.save())
+                want_step = (not c.paused and not t.done) or self.controls.take("single_step")
                 if not want_step:
-                    if (self._view_key(c), s.step_count) != self._published:
+                    if (self._view_key(c), t.step_count) != self.published:
                         self._publish(c)
                     self.its = 0.0
+                    self._status = self._make_status()
                     time.sleep(self.idle_sleep)
                     t_last = time.perf_counter()
                     continue
-                _, evaluated = s.advance(self.log_every)
+                _, evaluated = t.advance(self.log_every)
                 now = time.perf_counter()
                 if evaluated is None:  # steps per second of training, evaluations left out
                     dt = max(now - t_last, 1e-6)
@@ -304,11 +370,12 @@ class TrainerThread:
                 t_last = now
                 self._record()
                 c = self.controls.get()
-                changed = self._published is None or self._published[0] != self._view_key(c)
-                if changed or s.step_count % self.publish_every == 0 or c.paused or s.done:
+                changed = self.published is None or self.published[0] != self._view_key(c)
+                if changed or t.step_count % self.publish_every == 0 or c.paused or t.done:
                     self._publish(c)
+                self._status = self._make_status()
         except Exception:  # noqa: BLE001 -- shown in the GUI, training stops
             self.error = traceback.format_exc()
         finally:
+            self._status = self._make_status()
             self._drain_calls()
-

@@ -366,7 +366,7 @@ def parse_betas(text: str) -> np.ndarray:
 
 def smpl_body_spec(betas=(), gender: str = "neutral", smpl_dir: str | os.PathLike | None = None):
     """The (hashable) BodySpec of an SMPL body: betas are kept as a text list."""
-    from ..data.scene import BodySpec
+    from .spec import BodySpec
 
     if gender not in GENDERS:
         raise ValueError(f"SMPL gender must be one of {GENDERS}, found {gender!r}")

@@ -3,50 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 
 from ..body.base import BodyModel
 from ..body.pose import BodyPose
+from ..body.spec import BodySpec
 from ..camera import Camera
-
-
-@dataclass(frozen=True)
-class BodySpec:
-    """Which body model and shape: ``model`` ("anny" or "smpl") and its parameters."""
-
-    model: str = "anny"
-    params: tuple = ()  # sorted (key, value) pairs so the spec is hashable
-
-    @classmethod
-    def anny(cls, phenotype: dict[str, float], leg_spread_deg: float = 5.0) -> "BodySpec":
-        return cls("anny", tuple(sorted({**phenotype, "leg_spread_deg": leg_spread_deg}.items())))
-
-    def build(self) -> BodyModel:
-        return _build_body(self)
-
-    def to_dict(self) -> dict:
-        return {"model": self.model, "params": dict(self.params)}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "BodySpec":
-        return cls(str(d.get("model", "anny")), tuple(sorted(dict(d.get("params", {})).items())))
-
-
-@lru_cache(maxsize=4)
-def _build_body(spec: BodySpec) -> BodyModel:
-    if spec.model == "anny":
-        from ..body.anny_backend import AnnyBody
-
-        params = dict(spec.params)
-        spread = float(params.pop("leg_spread_deg", 5.0))
-        return AnnyBody(params, leg_spread_deg=spread)
-    if spec.model == "smpl":
-        from ..body.smpl_backend import build_smpl_body
-
-        return build_smpl_body(dict(spec.params))
-    raise ValueError(f"unknown body model {spec.model!r}; available: 'anny', 'smpl'")
 
 
 @dataclass

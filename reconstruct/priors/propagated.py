@@ -17,7 +17,7 @@ class PropagatedAppearancePrior(GuidancePrior):
 
     def loss(self, inp: GuidanceInput) -> GuidanceOutput:
         if inp.pseudo_target is None:
-            raise PriorError("the propagated-appearance prior needs a pseudo-target renderer from the session")
+            raise PriorError("the propagated-appearance prior needs a pseudo-target renderer from the guidance step")
         with torch.no_grad():
             target = inp.pseudo_target().detach()
         if target.shape != inp.render.shape:

@@ -22,11 +22,10 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Callable
-
 import torch
 import torch.nn.functional as F
 
+from ..schedule import Scheduled
 from .base import GuidanceInput, GuidanceOutput, GuidancePrior, PriorError
 from .zero123_loader import Zero123Components, load_zero123
 
@@ -47,8 +46,9 @@ class Zero123Prior(GuidancePrior):
     variant: "zero123", "stable-zero123", or "auto" (from the folder name).
     guidance_scale: classifier-free guidance scale (Zero123 SDS users: 3-5).
     t_range: (min, max) fraction of the training steps t is drawn from.
-    max_step_end: if set, the max fraction goes linearly from t_range[1] at progress 0 to this at
-        progress 1 (annealed noise levels); ``max_step_schedule(progress) -> fraction`` overrides it.
+    max_step: the max fraction over Stage II's progress, a ``Scheduled`` value (annealed noise
+        levels; e.g. ``Scheduled.ramp(0, 0.98, 0.5, 1)``) or anything ``Scheduled.parse`` takes
+        (``[start, 0.98, 0.5, end]``); default constant ``t_range[1]``.
     seed: seeds the prior's own generator (timesteps and noise), for reproducible runs.
     fixed_timestep / fixed_noise: use these instead of drawing (tests, determinism); fixed_noise
         is a latent-shaped (1, 4, h, w) tensor.
@@ -57,7 +57,7 @@ class Zero123Prior(GuidancePrior):
 
     def __init__(self, path: str | os.PathLike | None = None, *, components: Zero123Components | None = None,
                  variant: str = "auto", guidance_scale: float = 3.0, t_range: tuple[float, float] = (0.02, 0.98),
-                 max_step_end: float | None = None, max_step_schedule: Callable[[float], float] | None = None,
+                 max_step=None,
                  device: str | torch.device | None = None, dtype: torch.dtype | None = None,
                  seed: int | None = None, fixed_timestep: int | None = None,
                  fixed_noise: torch.Tensor | None = None, return_target: bool = False):
@@ -77,8 +77,7 @@ class Zero123Prior(GuidancePrior):
             raise ValueError(f"guidance_scale must be finite, found {guidance_scale}")
         self.guidance_scale = float(guidance_scale)
         self.t_range = (float(t_range[0]), float(t_range[1]))
-        self.max_step_end = max_step_end
-        self.max_step_schedule = max_step_schedule
+        self.max_step = Scheduled.parse(self.t_range[1] if max_step is None else max_step)
         self.fixed_timestep = fixed_timestep
         self.fixed_noise = fixed_noise
         self.return_target = return_target
@@ -102,13 +101,9 @@ class Zero123Prior(GuidancePrior):
     def step_range(self, progress: float) -> tuple[int, int]:
         """(min_step, max_step) at a fraction of Stage II done."""
         n = self.c.num_train_timesteps
-        lo, hi = self.t_range
+        lo = self.t_range[0]
         p = min(max(float(progress), 0.0), 1.0)
-        if self.max_step_schedule is not None:
-            hi = float(self.max_step_schedule(p))
-        elif self.max_step_end is not None:
-            hi = hi + (float(self.max_step_end) - hi) * p
-        hi = min(max(hi, lo), 1.0)
+        hi = min(max(self.max_step.value(p), lo), 1.0)
         min_step = int(n * lo + 1e-6)  # (tolerant of 0.98 - 0.9 = 0.0799999...)
         max_step = min(max(int(n * hi + 1e-6), min_step), n - 1)
         return min_step, max_step

@@ -11,17 +11,19 @@ set ``epoch_steps`` to the number of frames to count true epochs.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
+from typing import ClassVar
+
+from ..schedule import Scheduled
+from ..train.config import StageSettings
 
 PRIORS = ("builtin", "zero123")
 
 
 @dataclass
-class Stage2Config:
-    # length: whichever comes first
+class Stage2Config(StageSettings):
+    # length (StageSettings): whichever of iters and minutes comes first
     iters: int = 800
-    minutes: float | None = None
     # the split of each epoch (A.2.1): given-view training vs dual-space SDS, canonical vs observation
     given_view_ratio: float = 0.5
     canonical_ratio: float = 0.5
@@ -64,15 +66,13 @@ class Stage2Config:
     lr_features: float = 5e-4
     lr_pose_encoder: float = 1e-4
     lr_milestones: tuple[float, ...] = (2 / 3,)  # x lr_gamma after these fractions of Stage II
-    lr_gamma: float = 0.1
     # bookkeeping
     seed: int = 0
 
+    label: ClassVar[str] = "Stage II "
+
     def __post_init__(self) -> None:
-        if self.iters < 1:
-            raise ValueError(f"Stage II --iters must be at least 1, found {self.iters}")
-        if self.minutes is not None and self.minutes <= 0:
-            raise ValueError(f"Stage II --minutes must be positive, found {self.minutes}")
+        super().__post_init__()
         for name in ("given_view_ratio", "canonical_ratio"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
@@ -92,19 +92,12 @@ class Stage2Config:
         if self.lambda_sds < 0 or self.lambda_pose_features < 0:
             raise ValueError("Stage II loss weights must be non-negative")
 
-    def sds_weight(self, step: int) -> float:
-        """λ_SDS at a Stage II step (Eq. 14 over schedule epochs), or the constant λ_SDS,0."""
-        from ..train.schedule import halving
-
+    def sds_schedule(self) -> Scheduled:
+        """λ_SDS over schedule epochs (Eq. 14), or the constant λ_SDS,0."""
         if not self.progressive:
-            return self.lambda_sds
-        return halving(self.lambda_sds, step / self.epoch_steps, self.sds_t0, self.sds_k)
+            return Scheduled.constant(self.lambda_sds)
+        return Scheduled.halving(self.lambda_sds, self.sds_t0, self.sds_k)
 
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "Stage2Config":
-        from ..train.config import config_from_dict
-
-        return config_from_dict(cls, d, "Stage II")
+    def sds_weight(self, step: int) -> float:
+        """λ_SDS at a Stage II step."""
+        return self.sds_schedule().value(step / self.epoch_steps)

@@ -1,18 +1,56 @@
-"""Training configuration with the paper's defaults (Appendix A.1) and this machine's sizes."""
+"""Training configuration with the paper's defaults (Appendix A.1) and this machine's sizes.
+
+``StageSettings`` is what every stage has -- its length (steps or minutes, whichever ends first)
+and its learning-rate decay -- so Stage I and Stage II share one definition of both."""
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
+from typing import ClassVar
 
+from .. import config as config_layer
 from ..avatar.config import AvatarConfig
+from ..schedule import Scheduled
 
 
 @dataclass
-class Stage1Config:
+class StageSettings:
     # length: whichever comes first
     iters: int = 6000
     minutes: float | None = None
+    # learning rates x lr_gamma at each of these fractions of the stage
+    lr_milestones: tuple[float, ...] = (1 / 3, 2 / 3)
+    lr_gamma: float = 0.1
+
+    label: ClassVar[str] = ""  # prefix of error messages ("Stage II ")
+
+    def __post_init__(self) -> None:
+        if self.iters < 1:
+            raise ValueError(f"{self.label}--iters must be at least 1, found {self.iters}")
+        if self.minutes is not None and self.minutes <= 0:
+            raise ValueError(f"{self.label}--minutes must be positive, found {self.minutes}")
+
+    def progress(self, steps: int, seconds: float) -> float:
+        """Fraction of the stage done: whichever of its steps or minutes ends first."""
+        p = steps / self.iters
+        if self.minutes:
+            p = max(p, seconds / (60.0 * self.minutes))
+        return min(p, 1.0)
+
+    def lr_schedule(self) -> Scheduled:
+        """The learning-rate multiplier over the stage's fraction done."""
+        return Scheduled.drops(1.0, at=self.lr_milestones, factor=self.lr_gamma)
+
+    def to_dict(self) -> dict:
+        return config_layer.to_dict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        return config_layer.from_dict(cls, d, cls.label + "training")
+
+
+@dataclass
+class Stage1Config(StageSettings):
     # loss weights (paper Appendix A.1.3)
     lambda_rgb: float = 0.8
     lambda_normal: float = 0.8
@@ -21,11 +59,9 @@ class Stage1Config:
     lambda_offset: float = 0.85
     lambda_scale: float = 0.03
     lambda_features: float = 1.0
-    # optimiser (GaussianAvatar: Adam, decoder 3e-3, feature map 5e-4, x0.1 at 1/3 and 2/3 of the run)
+    # optimiser (GaussianAvatar: Adam, decoder 3e-3, feature map 5e-4; x lr_gamma at 1/3 and 2/3)
     lr_decoder: float = 3e-3
     lr_features: float = 5e-4
-    lr_milestones: tuple[float, ...] = (1 / 3, 2 / 3)
-    lr_gamma: float = 0.1
     # per-frame pose refinement (paper: on for in-the-wild videos, off where poses are accurate)
     pose_refinement: bool = False
     lr_pose: float = 5e-3
@@ -47,28 +83,9 @@ class Stage1Config:
     device: str = "cpu"
     avatar: AvatarConfig = field(default_factory=AvatarConfig)
 
+    label: ClassVar[str] = ""
+
     def __post_init__(self) -> None:
-        if self.iters < 1:
-            raise ValueError(f"--iters must be at least 1, found {self.iters}")
-        if self.minutes is not None and self.minutes <= 0:
-            raise ValueError(f"--minutes must be positive, found {self.minutes}")
         if isinstance(self.avatar, dict):
-            self.avatar = AvatarConfig(**self.avatar)
-
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "Stage1Config":
-        return config_from_dict(cls, d, "Stage I")
-
-
-def config_from_dict(cls, d: dict, what: str):
-    """A config dataclass from its ``to_dict()`` (JSON turns tuples into lists): unknown keys are an
-    error naming them; list values of tuple-typed fields become tuples again."""
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = set(d) - set(fields)
-    if unknown:
-        raise ValueError(f"unknown {what} settings {sorted(unknown)}")
-    d = {k: (tuple(v) if isinstance(v, list) and str(fields[k].type).startswith("tuple") else v) for k, v in d.items()}
-    return cls(**d)
+            self.avatar = config_layer.from_dict(AvatarConfig, self.avatar, "avatar")
+        super().__post_init__()

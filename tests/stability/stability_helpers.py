@@ -31,7 +31,7 @@ def record(case: str, **figures) -> None:
 
 def stage1_loss(model, transforms, camera, target_rgb, target_normal=None, *, config=None, dtype=torch.float32,
                 background=(0.0, 0.0, 0.0)):
-    """The Stage I loss of TrainingSession.step (without LPIPS) for one view, in ``dtype``: the model
+    """The Stage I loss of the Trainer's given-view step (without LPIPS) for one view, in ``dtype``: the model
     and the inputs are used as they are (convert them first). Returns (loss, terms, render)."""
     from reconstruct.train import losses as L
     from reconstruct.train.config import Stage1Config

@@ -1,6 +1,6 @@
-"""The non-finite guard of TrainingSession (reconstruct/train/session.py): a non-finite loss or
+"""The non-finite guard of the Trainer (reconstruct/train/trainer.py): a non-finite loss or
 gradient skips the step (parameters and optimiser state untouched), a non-finite parameter after
-the step restores the last good state; both are counted (session.nonfinite_skipped /
+the step restores the last good state; both are counted (trainer.nonfinite_skipped /
 restored_states, the metrics log's train record) and training goes on.
 
 The faults are injected at a chosen step: NaN from a loss term (a NaN loss), a NaN
@@ -17,14 +17,15 @@ import torch
 from stability_helpers import all_finite, record
 
 from reconstruct.train.checkpoint import load_checkpoint
-from reconstruct.train.session import TrainingSession
+from reconstruct.run_folder import RunFolder
+from reconstruct.train.trainer import Trainer
 
 BAD_STEP = 2  # the fault is injected in the step that starts with this step count
 
 
 def snapshot(session):
     return (copy.deepcopy(session.model.state_dict()), copy.deepcopy(session.optimizer.state_dict()),
-            session.pose_delta.detach().clone())
+            session.state.pose_delta.detach().clone())
 
 
 def assert_same(a, b):
@@ -106,7 +107,7 @@ def nan_parameter(session):
 
 @pytest.mark.parametrize("fault", [nan_loss, nan_gradient])
 def test_nonfinite_loss_or_gradient_skips_the_step(fault, tiny_scene, tiny_config, tmp_path):
-    session = TrainingSession(tiny_scene, tiny_config, tmp_path)
+    session = Trainer(tiny_scene, tiny_config, tmp_path)
     outs, before = run_with_fault(session, fault)
     bad = outs[BAD_STEP]
     assert bad.get("skipped") and bad["nonfinite_skipped"] == 1 and bad["restored_states"] == 0
@@ -122,12 +123,12 @@ def test_nonfinite_loss_or_gradient_skips_the_step(fault, tiny_scene, tiny_confi
     skipped = [r for r in records if r.get("kind") == "train" and r.get("skipped")]
     assert len(skipped) == 1 and skipped[0]["nonfinite_skipped"] == 1 and skipped[0]["step"] == BAD_STEP + 1
     assert load_checkpoint(session.save())["nonfinite_skipped"] == 1
-    assert TrainingSession.resume(tiny_scene, tmp_path).nonfinite_skipped == 1
+    assert RunFolder(tmp_path).resume(tiny_scene).nonfinite_skipped == 1
     record(f"guard: {fault.__name__}", skipped=session.nonfinite_skipped, restored=session.restored_states)
 
 
 def test_nonfinite_parameter_restores_the_last_good_state(tiny_scene, tiny_config, tmp_path):
-    session = TrainingSession(tiny_scene, tiny_config, tmp_path)
+    session = Trainer(tiny_scene, tiny_config, tmp_path)
     outs, before = run_with_fault(session, nan_parameter)
     bad = outs[BAD_STEP]
     assert bad.get("skipped") and bad["restored_states"] == 1 and bad["nonfinite_skipped"] == 1
@@ -143,7 +144,7 @@ def test_nonfinite_parameter_restores_the_last_good_state(tiny_scene, tiny_confi
 def test_persistent_nan_never_reaches_the_parameters(tiny_scene, tiny_config):
     """A fault on every step (a frame that always gives NaN): every step is skipped, the run still
     ends (skipped steps count), the parameters stay those of the start."""
-    session = TrainingSession(tiny_scene, tiny_config)
+    session = Trainer(tiny_scene, tiny_config)
     start = snapshot(session)
     disarm = nan_loss(session)
     try:
@@ -156,7 +157,7 @@ def test_persistent_nan_never_reaches_the_parameters(tiny_scene, tiny_config):
 
 
 def test_nonfinite_gaussians_skip_the_step(tiny_scene, tiny_config, tmp_path):
-    session = TrainingSession(tiny_scene, tiny_config, tmp_path)
+    session = Trainer(tiny_scene, tiny_config, tmp_path)
     outs, before = run_with_fault(session, nan_gaussians)
     assert outs[BAD_STEP].get("skipped") and session.nonfinite_skipped == 1
     assert_same(before[BAD_STEP], before[BAD_STEP + 1])

@@ -17,19 +17,19 @@ GRAD_TOL = 1e-4
 
 
 def test_training_step_float32_vs_float64(tiny_scene, tiny_config):
-    from reconstruct.train.session import TrainingSession
+    from reconstruct.train.trainer import Trainer
 
-    session = TrainingSession(tiny_scene, tiny_config)
+    session = Trainer(tiny_scene, tiny_config)
     for _ in range(3):  # away from the initial state
         session.step()
     results = {}
     for dtype in (torch.float32, torch.float64):
         model = copy.deepcopy(session.model).to(dtype)
         frame = 1
-        tgt = session._targets[frame]
-        transforms = session.frame_transforms(frame).to(dtype)
-        loss, terms, _ = stage1_loss(model, transforms, tgt["camera"], tgt["image"].to(dtype),
-                                     tgt["normal"].to(dtype) if tgt["normal"] is not None else None,
+        tgt = session.data.targets[frame]
+        transforms = session.state.frame_transforms(frame).to(dtype)
+        loss, terms, _ = stage1_loss(model, transforms, tgt.camera, tgt.image.to(dtype),
+                                     tgt.normal.to(dtype) if tgt.normal is not None else None,
                                      config=tiny_config, dtype=dtype, background=tiny_config.background)
         loss.backward()
         grads = {name: p.grad.double() for name, p in model.named_parameters() if p.grad is not None}

@@ -182,7 +182,7 @@ def test_train_command_reports_a_failed_checkpoint(tmp_path, monkeypatch, capsys
                                        "the previous checkpoint, if any, is kept")
         return real_save(state, path)
 
-    monkeypatch.setattr("reconstruct.train.session.save_checkpoint", filling_disk)
+    monkeypatch.setattr("reconstruct.train.trainer.save_checkpoint", filling_disk)
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "error:" in err and "No space left on device" in err and "Traceback" not in err

@@ -5,24 +5,26 @@ import numpy as np
 import pytest
 import torch
 
+from reconstruct.run_folder import RunFolder
 from reconstruct.train.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from reconstruct.train.metrics_log import MetricsLog
-from reconstruct.train.session import CHECKPOINT_NAME, TrainingSession
+from reconstruct.train.checkpoint import CHECKPOINT_NAME
+from reconstruct.train.trainer import Trainer
 
 
 def test_training_reduces_the_loss_and_marks_visibility(tiny_scene, tiny_config):
-    s = TrainingSession(tiny_scene, tiny_config)
+    s = Trainer(tiny_scene, tiny_config)
     first = [s.step()["rgb"] for _ in range(4)]
     for _ in range(40):
         s.step()
     last = [s.step()["rgb"] for _ in range(4)]
     assert np.mean(last) < 0.7 * np.mean(first)
     snap = s.make_snapshot("canonical")
-    n = s.model.num_gaussians
+    n = s.state.num_gaussians
     assert snap.means.shape == (n, 3) and snap.visibility.shape == (n,) and snap.colors.shape == (n, 3)
     assert snap.step == s.step_count == 48
     # Eq. 7: front-facing Gaussians are first hits of the front camera, back-facing ones are not
-    normals = s.model.base_normals.numpy()
+    normals = s.state.model.base_normals.numpy()
     front = normals[:, 1] < -0.7
     back = normals[:, 1] > 0.7
     seen = snap.visibility.astype(bool)
@@ -31,7 +33,7 @@ def test_training_reduces_the_loss_and_marks_visibility(tiny_scene, tiny_config)
 
 
 def test_observation_snapshot_is_posed(tiny_scene, tiny_config):
-    s = TrainingSession(tiny_scene, tiny_config)
+    s = Trainer(tiny_scene, tiny_config)
     a = s.make_snapshot("observation", 0)
     c = s.make_snapshot("canonical")
     assert np.abs(a.means - c.means).max() > 0.01
@@ -41,17 +43,17 @@ def test_observation_snapshot_is_posed(tiny_scene, tiny_config):
 
 def test_checkpoint_resume_continues_identically(tiny_scene, tiny_config, tmp_path):
     torch.set_num_threads(1)
-    straight = TrainingSession(tiny_scene, tiny_config, tmp_path / "a")
+    straight = Trainer(tiny_scene, tiny_config, tmp_path / "a")
     (tmp_path / "a").mkdir()
     for _ in range(6):
         straight.step()
     straight.save()
-    saved = {k: v.clone() for k, v in straight.model.state_dict().items()}
+    saved = {k: v.clone() for k, v in straight.state.model.state_dict().items()}
     after = [straight.step()["loss"] for _ in range(4)]
 
-    resumed = TrainingSession.resume(tiny_scene, tmp_path / "a")
+    resumed = RunFolder(tmp_path / "a").resume(tiny_scene)
     assert resumed.step_count == 6
-    for k, v in resumed.model.state_dict().items():
+    for k, v in resumed.state.model.state_dict().items():
         assert torch.equal(v, saved[k]), k
     again = [resumed.step()["loss"] for _ in range(4)]
     assert np.allclose(after, again, rtol=1e-5, atol=1e-7)
@@ -90,7 +92,7 @@ def test_empty_mask_frame_is_an_error(tiny_scene, tiny_config):
     scene = copy.deepcopy(tiny_scene)
     scene.frames[2].mask[:] = 0
     with pytest.raises(ValueError, match="frame 2 has an empty mask"):
-        TrainingSession(scene, tiny_config)
+        Trainer(scene, tiny_config)
 
 
 def test_metrics_log_skips_a_torn_line(tmp_path):
@@ -105,7 +107,7 @@ def test_metrics_log_skips_a_torn_line(tmp_path):
 
 
 def test_evaluation_reports_seen_and_unseen(tiny_scene, tiny_config):
-    s = TrainingSession(tiny_scene, tiny_config)
+    s = Trainer(tiny_scene, tiny_config)
     rows, summary = s.evaluate()
     assert len(rows) == len(tiny_scene.eval_views)
     assert summary["seen_psnr"] is not None and summary["unseen_psnr"] is not None
@@ -139,7 +141,7 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
 
 
 def test_second_trainer_on_a_run_folder_is_refused(tmp_path):
-    from app.train_cmd import RunLock, RunLockedError
+    from reconstruct.run_folder import RunLock, RunLockedError
 
     with RunLock(tmp_path):  # held: a second holder (another open file description) is refused
         assert (tmp_path / ".lock").read_text() == str(os.getpid())
@@ -155,21 +157,21 @@ def test_second_trainer_on_a_run_folder_is_refused(tmp_path):
 def test_pose_refinement_moves_the_poses(tiny_scene, tiny_config):
     tiny_config.pose_refinement = True
     tiny_config.pose_refinement_start = 0.0
-    s = TrainingSession(tiny_scene, tiny_config)
+    s = Trainer(tiny_scene, tiny_config)
     for _ in range(4):
         s.step()
-    assert s.pose_delta.detach().abs().max() > 0
-    refined = s.refined_pose(0)
+    assert s.state.pose_delta.detach().abs().max() > 0
+    refined = s.state.refined_pose(0)
     assert refined.joint_rotations.shape == tiny_scene.frames[0].pose.joint_rotations.shape
     # the refined transforms are the body model's for the refined pose
-    T = s.body.bone_transforms(refined).float()
-    assert torch.allclose(s.frame_transforms(0), T, atol=1e-5)
+    T = s.state.body.bone_transforms(refined).float()
+    assert torch.allclose(s.state.frame_transforms(0), T, atol=1e-5)
 
 
 def test_snapshots_cross_threads(tiny_scene, tiny_config):
     import threading
 
-    s = TrainingSession(tiny_scene, tiny_config)
+    s = Trainer(tiny_scene, tiny_config)
     seen_versions = []
 
     def train():

@@ -1,0 +1,174 @@
+"""AvatarState: what training changes, apart from how a stage trains it.
+
+It holds the avatar model (feature map S, decoder G, and in Stage II the pose encoder E), the
+per-frame pose corrections, and the visibility flags: ``seen`` (Eq. 7, marked during Stage I) and
+``trusted_seen`` (the flags shrunk on the UV grid that Stage II works with). Everything that
+renders or exports an avatar asks it for Gaussians -- canonical or posed, at a video frame or at
+any pose -- and ``frozen()`` gives a copy that no longer changes (exports while training goes on).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import torch
+
+from ..body.base import BodyModel
+from ..body.pose import BodyPose
+from ..snapshot import Snapshot
+from .model import AvatarModel, CanonicalGaussians, PosedGaussians
+
+SPACES = ("observation", "canonical")
+
+
+class AvatarState:
+    def __init__(self, body: BodyModel, model: AvatarModel, poses: list[BodyPose], *,
+                 refine_poses: bool = False) -> None:
+        self.body = body
+        self.model = model
+        self.poses = list(poses)  # the video's frame poses (fitted), corrected by pose_delta
+        self.refine_poses = refine_poses
+        J = body.num_joints
+        self.pose_delta = torch.nn.Parameter(torch.zeros(len(self.poses), J + 2, 3, dtype=torch.float64))
+        self.seen = torch.zeros(model.num_gaussians, dtype=torch.bool)
+        self.trusted_seen: torch.Tensor | None = None
+        self._transforms: dict[int, torch.Tensor] = {}
+        self._articulations: dict[int, torch.Tensor] = {}
+
+    @property
+    def device(self) -> torch.device:
+        return self.model.features.device
+
+    @property
+    def num_gaussians(self) -> int:
+        return self.model.num_gaussians
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.poses)
+
+    def check_frame(self, i: int) -> int:
+        if not 0 <= i < len(self.poses):
+            raise ValueError(f"frame {i} is out of range: the video has {len(self.poses)} frames (0..{len(self.poses) - 1})")
+        return i
+
+    # ----- poses ----------------------------------------------------------------------------
+    def pose_transforms(self, pose: BodyPose) -> torch.Tensor:
+        """(J,4,4) bone transforms of any pose of the body, on the model's device."""
+        return self.body.bone_transforms(pose).float().to(self.device)
+
+    def frame_transforms(self, i: int, refined: bool = True) -> torch.Tensor:
+        """Bone transforms of video frame ``i``: with its pose correction when poses are refined
+        (differentiable in ``pose_delta``), else the fitted pose's (cached)."""
+        if refined and self.refine_poses:
+            p, d = self.poses[i], self.pose_delta[i]
+            f64 = dict(dtype=torch.float64)
+            T = self.body.bone_transforms_t(torch.as_tensor(p.joint_rotations, **f64) + d[:-2],
+                                            torch.as_tensor(p.global_orient, **f64) + d[-2],
+                                            torch.as_tensor(p.transl, **f64) + d[-1])
+            return T.float().to(self.device)
+        if i not in self._transforms:
+            self._transforms[i] = self.pose_transforms(self.poses[i])
+        return self._transforms[i]
+
+    def refined_pose(self, i: int) -> BodyPose:
+        p = self.poses[i]
+        d = self.pose_delta[i].detach().numpy()
+        return BodyPose(p.joint_rotations + d[:-2], p.global_orient + d[-2], p.transl + d[-1])
+
+    def articulation_of_pose(self, pose: BodyPose) -> torch.Tensor:
+        """Bone transforms of a pose without its global rotation and translation (the pose
+        encoder's input)."""
+        return self.pose_transforms(BodyPose(pose.joint_rotations, np.zeros(3), np.zeros(3)))
+
+    def articulation(self, frame: int | None) -> torch.Tensor:
+        """``articulation_of_pose`` of video frame ``frame`` (cached), or of the canonical pose."""
+        key = -1 if frame is None else frame
+        if key not in self._articulations:
+            self._articulations[key] = (self.body.canonical_transforms.float().to(self.device) if frame is None
+                                        else self.articulation_of_pose(self.poses[frame]))
+        return self._articulations[key]
+
+    # ----- Gaussians ------------------------------------------------------------------------
+    def decode(self, frame: int | None = None, pose: BodyPose | None = None
+               ) -> tuple[CanonicalGaussians, torch.Tensor | None]:
+        """G([S, S]) -- or with pose injection G([S, P]) for video frame ``frame`` / ``pose`` (the
+        canonical pose when neither is given) -- and the pose features E(P_uv) (None without pose
+        injection) for their regulariser."""
+        if self.model.pose_encoder is None:
+            return self.model.canonical(), None
+        art = self.articulation_of_pose(pose) if pose is not None else self.articulation(frame)
+        pf = self.model.pose_features(art)
+        return self.model.canonical(pf), pf
+
+    def canonical(self, frame: int | None = None, pose: BodyPose | None = None) -> CanonicalGaussians:
+        return self.decode(frame, pose)[0]
+
+    def posed(self, frame: int) -> PosedGaussians:
+        """The avatar in observation space at video frame ``frame``."""
+        return self.model.pose(self.canonical(frame), self.frame_transforms(frame))
+
+    def posed_at(self, pose: BodyPose) -> PosedGaussians:
+        """The avatar at any pose of its body (novel poses, motion files)."""
+        return self.model.pose(self.canonical(pose=pose), self.pose_transforms(pose))
+
+    def splats(self, space: str = "observation", frame: int = 0) -> PosedGaussians:
+        if space == "canonical":
+            return self.model.splats(self.canonical(None))
+        if space == "observation":
+            return self.posed(frame)
+        raise ValueError(f"snapshot space must be 'observation' or 'canonical', found {space!r}")
+
+    def seen_flags(self) -> torch.Tensor:
+        """The flags the visibility mode shows: Stage II's trusted ones once it has them."""
+        return self.trusted_seen if self.trusted_seen is not None else self.seen
+
+    @torch.no_grad()
+    def snapshot(self, space: str = "observation", frame: int = 0, **meta) -> Snapshot:
+        return Snapshot.from_gaussians(self.splats(space, frame), self.seen_flags(), space=space, frame_index=frame,
+                                       **meta)
+
+    @torch.no_grad()
+    def snapshot_at_pose(self, pose: BodyPose, frame: int = 0, **meta) -> Snapshot:
+        return Snapshot.from_gaussians(self.posed_at(pose), self.seen_flags(), space="observation", frame_index=frame,
+                                       **meta)
+
+    # ----- copies and checkpoints -------------------------------------------------------------
+    def frozen(self) -> "AvatarState":
+        """A copy whose avatar no longer changes (model, pose corrections and flags copied; the
+        body and the video's poses shared). Take it between training steps."""
+        f = copy.copy(self)
+        f.model = copy.deepcopy(self.model, memo={id(self.body): self.body})
+        with torch.no_grad():
+            f.pose_delta = torch.nn.Parameter(self.pose_delta.detach().clone(), requires_grad=False)
+        f.seen = self.seen.clone()
+        f.trusted_seen = None if self.trusted_seen is None else self.trusted_seen.clone()
+        f._transforms = dict(self._transforms)
+        f._articulations = dict(self._articulations)
+        return f
+
+    def state_dict(self) -> dict:
+        return {"model": self.model.state_dict(), "pose_delta": self.pose_delta.detach().clone(),
+                "seen": self.seen.clone(),
+                "trusted_seen": None if self.trusted_seen is None else self.trusted_seen.clone()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.model.load_state_dict(state["model"])
+        with torch.no_grad():
+            self.pose_delta.copy_(state["pose_delta"])
+        self.seen = state["seen"].clone()
+        ts = state.get("trusted_seen")
+        self.trusted_seen = None if ts is None else ts.clone()
+
+    @torch.no_grad()
+    def mark_seen(self, first_hit: torch.Tensor, posed: PosedGaussians, camera) -> None:
+        """Paper Eq. 7: a Gaussian is seen when it is the first hit of a training ray -- counted only
+        where it faces the camera. Without the facing test, Gaussians on the back of thin limbs whose
+        footprint spills past the outline are first hits on outline pixels and would be marked seen."""
+        hits = torch.unique(first_hit[first_hit >= 0])
+        if len(hits) == 0:
+            return
+        centre = torch.as_tensor(camera.center, dtype=posed.means.dtype, device=posed.means.device)
+        facing = ((posed.means[hits] - centre) * posed.normals[hits]).sum(1) < 0
+        self.seen[hits[facing].cpu()] = True

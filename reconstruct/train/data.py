@@ -1,0 +1,47 @@
+"""What training compares against: every video frame cropped to the body's box (plus a margin),
+composited on the training background, with its cropped camera. Prepared once per run and
+shared by every stage."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..camera import Camera
+from ..data.scene import Scene
+from .render import crop_camera, mask_box
+
+
+@dataclass
+class FrameTarget:
+    camera: Camera  # the frame's camera cropped to ``box``
+    image: torch.Tensor  # (h,w,3) over the background
+    mask: torch.Tensor  # (h,w)
+    normal: torch.Tensor | None  # (h,w,3) camera-space normals stored as 0.5 (n + 1), or None
+    box: tuple[int, int, int, int]
+
+
+class TrainingData:
+    def __init__(self, scene: Scene, background: torch.Tensor, crop_margin: int) -> None:
+        self.scene = scene
+        self.background = background
+        self.use_normals = scene.has_normals
+        self.targets = [self._prepare(i, crop_margin) for i in range(len(scene.frames))]
+
+    def __len__(self) -> int:
+        return len(self.targets)
+
+    def _prepare(self, i: int, margin: int) -> FrameTarget:
+        f = self.scene.frames[i]
+        if f.mask.max() <= 0:
+            raise ValueError(f"scene {self.scene.name}: frame {i} has an empty mask (no person to learn from)")
+        box = mask_box(f.mask, margin)
+        x0, y0, x1, y1 = box
+        device = self.background.device
+        as_t = lambda a: torch.as_tensor(np.ascontiguousarray(a[y0:y1, x0:x1]), dtype=torch.float32, device=device)
+        mask = as_t(f.mask)
+        image = as_t(f.image) + (1 - mask[..., None]) * self.background
+        normal = as_t(f.normal) if f.normal is not None else None
+        return FrameTarget(crop_camera(f.camera, box), image, mask, normal, box)

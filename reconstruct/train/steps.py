@@ -1,0 +1,100 @@
+"""Step kinds: one small interface for what a training step computes.
+
+A step looks at the trainer (avatar state, training data, random generator, the stage's progress)
+and returns a ``StepOutcome``: the loss terms and their weights, the frame it used, and what to do
+once the update is taken. The trainer owns everything else: the optimisers, the learning-rate
+schedule, the guards against non-finite numbers, the clocks and the logs. In the spirit of
+gsplat's ``Strategy``: policy in small objects, the loop outside.
+
+``GivenViewStep`` is the Stage I loss on a video frame (paper Eq. 11); Stage II adds the guidance
+step (``reconstruct.stage2.guidance``).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
+
+import torch
+
+from . import losses as L
+from .config import Stage1Config
+from .render import render_avatar
+
+if TYPE_CHECKING:
+    from .trainer import Trainer
+
+
+@dataclass
+class StepOutcome:
+    frame: int  # the video frame used (-1: canonical space)
+    terms: dict[str, torch.Tensor] = field(default_factory=dict)  # unweighted loss terms
+    weights: dict[str, float] = field(default_factory=dict)
+    refine_poses: bool = False  # whether the pose corrections take part in this update
+    info: dict = field(default_factory=dict)  # numbers for the metrics log
+    after_update: Callable[[], None] | None = None  # bookkeeping once the update is taken
+    skipped: bool = False  # non-finite Gaussians: nothing to update
+
+    def loss(self) -> torch.Tensor:
+        return sum(self.weights[k] * v for k, v in self.terms.items())
+
+
+def gaussians_finite(g) -> bool:
+    """Whether posed Gaussians are all finite (a bad decoder output or pose must not reach the
+    rasterizer, whose input check would stop the run)."""
+    return all(bool(torch.isfinite(t).all()) for t in (g.means, g.scales, g.colors, g.normals))
+
+
+class TrainingStep(ABC):
+    kind: str
+
+    @abstractmethod
+    def __call__(self, trainer: Trainer) -> StepOutcome:
+        ...
+
+
+class GivenViewStep(TrainingStep):
+    """Paper Eq. 11 on a video frame: RGB, SSIM, normals, LPIPS (with weights), the Frobenius
+    regularisers of Δx, s and S, plus λ_p‖E(P_uv)‖ when the avatar has pose injection (Eq. 16).
+    ``marks_seen``: first-hit Gaussians that face the camera become seen (Eq. 7, Stage I)."""
+
+    kind = "given"
+
+    def __init__(self, config: Stage1Config, *, marks_seen: bool = True, lambda_pose_features: float = 0.0) -> None:
+        self.config = config
+        self.marks_seen = marks_seen
+        self.lambda_pose_features = lambda_pose_features
+
+    def __call__(self, trainer: Trainer) -> StepOutcome:
+        cfg, state, data = self.config, trainer.state, trainer.data
+        i = trainer.next_frame()
+        tgt = data.targets[i]
+        refine = state.refine_poses and trainer.progress >= cfg.pose_refinement_start
+        canon, pose_features = state.decode(i)
+        posed = state.model.pose(canon, state.frame_transforms(i, refined=refine))
+        if not gaussians_finite(posed):
+            return StepOutcome(i, skipped=True)
+        r = render_avatar(posed, tgt.camera, data.background, normals=data.use_normals, first_hit=self.marks_seen,
+                          hit_threshold=cfg.hit_threshold)
+        terms = {
+            "rgb": L.mse(r.rgb, tgt.image),
+            "ssim": L.ssim_loss(r.rgb, tgt.image),
+            "offset": L.mean_square(canon.offsets_raw),
+            "scale": L.mean_square(canon.scales),
+            "features": L.mean_square(canon.features),
+        }
+        weights = {"rgb": cfg.lambda_rgb, "ssim": cfg.lambda_ssim, "offset": cfg.lambda_offset,
+                   "scale": cfg.lambda_scale, "features": cfg.lambda_features}
+        if data.use_normals and tgt.normal is not None:
+            terms["normal"] = L.mse(r.normal, tgt.normal)
+            weights["normal"] = cfg.lambda_normal
+        if trainer.lpips is not None:
+            terms["lpips"] = trainer.lpips(r.rgb[None].clamp(0, 1), tgt.image[None]).mean()
+            weights["lpips"] = cfg.lambda_lpips
+        if pose_features is not None:
+            terms["pose_features"] = L.mean_square(pose_features)
+            weights["pose_features"] = self.lambda_pose_features
+        info = {"psnr_train": float(-10 * torch.log10(terms["rgb"].detach().clamp_min(1e-12)))}
+        after = (lambda: state.mark_seen(r.first_hit, posed, tgt.camera)) if self.marks_seen else None
+        return StepOutcome(i, terms, weights, refine_poses=refine, info=info, after_update=after)
