@@ -62,6 +62,8 @@ def _stage1_config(args):
         kw["eval_every_seconds"] = args.eval_every
     if args.pose_refinement:
         kw["pose_refinement"] = True
+    if args.holdout is not None:
+        kw["holdout"] = args.holdout
     if args.lpips_backbone or args.lpips_lin:
         kw.update(lpips_backbone=args.lpips_backbone, lpips_lin=args.lpips_lin, lpips_net=args.lpips_net)
     sets = config_layer.parse_overrides(Stage1Config, args.set, "Stage I", "--set")
@@ -211,6 +213,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--hidden", type=int, default=None, help="decoder width")
     s.add_argument("--eval-every", type=float, default=None, help="seconds of training between evaluations")
     s.add_argument("--pose-refinement", action="store_true", help="optimise per-frame poses (in-the-wild videos)")
+    s.add_argument("--holdout", type=int, default=None, metavar="K",
+                   help="hold every K-th frame out of training for seen-view validation (default 8 for a scene "
+                        "without evaluation views, e.g. your own video; 0 = off)")
     s.add_argument("--lpips-backbone", default=None, help="AlexNet/VGG backbone weights (torchvision state dict)")
     s.add_argument("--lpips-lin", default=None, help="LPIPS linear-layer weights (alex.pth / vgg.pth)")
     s.add_argument("--lpips-net", default="alex", choices=["alex", "vgg"])

@@ -25,14 +25,21 @@ def _run(trainer, desc: str, progress: bool) -> None:
             out, _ = trainer.advance()
             bar.update(round(1000 * trainer.progress) - bar.n if by_time else 1)
             if trainer.step_count % 25 == 0 and not out.get("skipped"):
-                bar.set_postfix(loss=f"{out['loss']:.4f}",
-                                seen=f"{trainer.latest.get('seen_psnr', float('nan')):.1f}",
-                                unseen=f"{trainer.latest.get('unseen_psnr', float('nan')):.1f}")
+                bar.set_postfix(_postfix(out, trainer.latest))
     finally:
         bar.close()
         trainer.save()
     trainer.maybe_evaluate(force=True)
     trainer.save()
+
+
+def _postfix(out: dict, latest: dict) -> dict:
+    """The progress bar's numbers: the loss and the PSNRs the run has (evaluation views, validation)."""
+    shown = {"loss": f"{out['loss']:.4f}"}
+    for key, name in (("seen_psnr", "seen"), ("unseen_psnr", "unseen"), ("val_psnr", "val")):
+        if isinstance(latest.get(key), (int, float)):
+            shown[name] = f"{latest[key]:.1f}"
+    return shown
 
 
 def _report(trainer, run: RunFolder) -> None:
@@ -47,9 +54,12 @@ def _describe_stage1(trainer) -> None:
         print(trainer.lpips_note, file=sys.stderr)
     if not trainer.data.use_normals:
         print("normal loss left out: the scene has no normal maps", file=sys.stderr)
+    if not trainer.scene.eval_views:
+        print(f"the scene has no evaluation views (no ground truth from other cameras): unseen-view metrics are "
+              f"left out; validation on {trainer.val_kind}: frames {trainer.val_frames}", file=sys.stderr)
     width, height = trainer.scene.image_size
-    print(f"{trainer.state.num_gaussians} Gaussians, images {width}x{height}, target {trainer.plan.describe()}",
-          file=sys.stderr)
+    print(f"{trainer.state.num_gaussians} Gaussians, images {width}x{height}, {len(trainer.data)} training frames, "
+          f"target {trainer.plan.describe()}", file=sys.stderr)
 
 
 def _enter_stage2(trainer, run: RunFolder, stage2, allow_incomplete: bool):

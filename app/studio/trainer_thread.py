@@ -91,6 +91,7 @@ class HistoryRow(NamedTuple):
     seen_psnr: float
     unseen_psnr: float
     stage: int = 1
+    val_psnr: float = float("nan")  # held-out frames of the video (or the training-view fit)
 
 
 class TrainerThread:
@@ -233,7 +234,7 @@ class TrainerThread:
         """A reopened run's curves so far, from its metrics log (training losses and evaluations)."""
         if trainer.log is None:
             return []
-        rows, seen, unseen, nan = [], float("nan"), float("nan"), float("nan")
+        rows, seen, unseen, val, nan = [], float("nan"), float("nan"), float("nan"), float("nan")
         try:
             records = trainer.log.read()
         except (OSError, ValueError):
@@ -242,10 +243,11 @@ class TrainerThread:
             if r.get("kind") == "eval":
                 seen = float(r.get("seen_psnr") or nan)
                 unseen = float(r.get("unseen_psnr") or nan)
+                val = float(r.get("val_psnr") or nan)
             elif "loss" not in r:
                 continue
             rows.append(HistoryRow(float(r.get("elapsed", 0.0)), int(r.get("step", 0)), float(r.get("loss", nan)),
-                                   seen, unseen, int(r.get("stage", 1))))
+                                   seen, unseen, int(r.get("stage", 1)), val))
         return rows
 
     def _record(self) -> None:
@@ -253,7 +255,8 @@ class TrainerThread:
         lat = t.latest
         nan = float("nan")
         row = HistoryRow(float(t.elapsed), int(t.step_count), float(lat.get("loss", nan)),
-                         float(lat.get("seen_psnr", nan)), float(lat.get("unseen_psnr", nan)), t.stage)
+                         float(lat.get("seen_psnr", nan)), float(lat.get("unseen_psnr", nan)), t.stage,
+                         float(lat.get("val_psnr", nan)))
         with self._hist_lock:
             self._history.append(row)
 

@@ -70,6 +70,7 @@ class Stage2Plan(StagePlan):
                       "canonical": GuidanceStep("canonical", self, self.prior),
                       "observation": GuidanceStep("observation", self, self.prior)}
         self.scene = trainer.scene
+        self.training_frames = list(trainer.data.frames)
         self.spaces: list[SpaceViews] = []
         self.pseudo_colors: torch.Tensor | None = None
         self.canonical_reference: torch.Tensor | None = None
@@ -123,9 +124,11 @@ class Stage2Plan(StagePlan):
                                    threshold=s2.visibility_threshold)
 
     def reference_frames(self, count: int = 6) -> list[int]:
-        """Evenly spaced input frames used as observation-space references."""
-        T = len(self.scene.frames)
-        return sorted({int(round(x)) for x in np.linspace(0, T - 1, min(count, T))})
+        """Evenly spaced training frames (held-out validation frames left out) used as
+        observation-space references."""
+        frames = self.training_frames
+        T = len(frames)
+        return sorted({frames[int(round(x))] for x in np.linspace(0, T - 1, min(count, T))})
 
     @property
     def selected_views(self) -> list[CandidateView]:

@@ -75,6 +75,9 @@ class Stage1Config(StageSettings):
     lpips_lin: str | None = None
     # visibility (paper Eq. 7): a Gaussian is seen when it is the first hit with alpha >= this
     hit_threshold: float = 0.5
+    # seen-view validation: every holdout-th frame is kept out of training and compared with the
+    # avatar (None: 8 for a scene without evaluation views, e.g. one's own video, else 0; 0 = off)
+    holdout: int | None = None
     # bookkeeping
     eval_every_seconds: float = 60.0
     checkpoint_every_seconds: float = 120.0

@@ -1,6 +1,6 @@
-"""What training compares against: every video frame cropped to the body's box (plus a margin),
-composited on the training background, with its cropped camera. Prepared once per run and
-shared by every stage."""
+"""What training compares against: the training frames (the video less its held-out validation
+frames) cropped to the body's box (plus a margin), composited on the training background, with
+their cropped cameras. Prepared once per run and shared by every stage."""
 
 from __future__ import annotations
 
@@ -24,14 +24,18 @@ class FrameTarget:
 
 
 class TrainingData:
-    def __init__(self, scene: Scene, background: torch.Tensor, crop_margin: int) -> None:
+    def __init__(self, scene: Scene, background: torch.Tensor, crop_margin: int,
+                 frames: list[int] | None = None) -> None:
         self.scene = scene
         self.background = background
         self.use_normals = scene.has_normals
-        self.targets = [self._prepare(i, crop_margin) for i in range(len(scene.frames))]
+        self.frames = list(range(len(scene.frames))) if frames is None else list(frames)  # the training frames
+        if not self.frames:
+            raise ValueError(f"scene {scene.name}: no frame left to train on")
+        self.targets = {i: self._prepare(i, crop_margin) for i in self.frames}
 
     def __len__(self) -> int:
-        return len(self.targets)
+        return len(self.frames)
 
     def _prepare(self, i: int, margin: int) -> FrameTarget:
         f = self.scene.frames[i]

@@ -1,19 +1,33 @@
-"""The error-vs-run-time report: PSNR over training seconds, seen and unseen views."""
+"""The error-vs-run-time report: PSNR over training seconds, for the views a run has -- seen and
+unseen evaluation views (ground truth from other cameras) and the seen-view validation (held-out
+frames of the video, or the training-view fit)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from .metrics_log import MetricsLog
 from ..atomic import atomic_output
+from .metrics_log import MetricsLog
+
+# (record key, column title, width, decimals)
+COLUMNS = (("seen_psnr", "seen PSNR", 10, 2), ("seen_ssim", "seen SSIM", 10, 4), ("unseen_psnr", "unseen PSNR", 12, 2),
+           ("unseen_ssim", "unseen SSIM", 12, 4), ("val_psnr", "val PSNR", 9, 2), ("val_ssim", "val SSIM", 9, 4),
+           ("val_alpha_iou", "val alpha IoU", 14, 4))
+# (record key prefix, label, colour) of the curves
+CURVES = (("seen", "seen views", "tab:orange"), ("unseen", "unseen views", "tab:blue"),
+          ("val", "validation frames", "tab:green"))
 
 
 def error_vs_time_table(records: list[dict]) -> str:
-    lines = [f"{'seconds':>8} {'step':>7} {'stage':>5} {'seen PSNR':>10} {'seen SSIM':>10} {'unseen PSNR':>12} {'unseen SSIM':>12}"]
-    fmt = lambda v, w, p: f"{v:>{w}.{p}f}" if isinstance(v, (int, float)) else f"{'-':>{w}}"  # noqa: E731
+    """A text table of the evaluation records, with the columns any record has a value for."""
+    cols = [c for c in COLUMNS if any(isinstance(r.get(c[0]), (int, float)) for r in records)]
+    lines = [f"{'seconds':>8} {'step':>7} {'stage':>5} " + " ".join(f"{t:>{w}}" for _, t, w, _ in cols)]
     for r in records:
-        lines.append(f"{r['elapsed']:>8.0f} {r['step']:>7d} {r.get('stage', 1):>5} {fmt(r.get('seen_psnr'), 10, 2)} "
-                     f"{fmt(r.get('seen_ssim'), 10, 4)} {fmt(r.get('unseen_psnr'), 12, 2)} {fmt(r.get('unseen_ssim'), 12, 4)}")
+        cells = [f"{r[k]:>{w}.{p}f}" if isinstance(r.get(k), (int, float)) else f"{'-':>{w}}" for k, _, w, p in cols]
+        lines.append(f"{r['elapsed']:>8.0f} {r['step']:>7d} {r.get('stage', 1):>5} " + " ".join(cells))
+    kinds = sorted({r["val_kind"] for r in records if r.get("val_kind")})
+    if kinds:
+        lines.append(f"(val: {', '.join(kinds)})")
     return "\n".join(lines)
 
 
@@ -30,7 +44,11 @@ def plot_error_vs_time(run_dir: str | Path, out: str | Path | None = None) -> Pa
     out = Path(out) if out else run_dir / "error_vs_time.png"
     t = [r["elapsed"] for r in records]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    for key, label, color in (("seen", "seen views", "tab:orange"), ("unseen", "unseen views", "tab:blue")):
+    for key, label, color in CURVES:
+        if not any(isinstance(r.get(f"{key}_psnr"), (int, float)) for r in records):
+            continue
+        if key == "val":
+            label += f" ({records[-1].get('val_kind', 'held out')})"
         axes[0].plot(t, [r.get(f"{key}_psnr") for r in records], "o-", ms=3, label=label, color=color)
         axes[1].plot(t, [r.get(f"{key}_ssim") for r in records], "o-", ms=3, label=label, color=color)
     stage2 = [r["elapsed"] for r in records if r.get("stage") == 2]

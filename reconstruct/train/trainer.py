@@ -37,6 +37,7 @@ from .data import TrainingData
 from .evaluate import evaluate_views
 from .metrics_log import MetricsLog
 from .plan import Stage1Plan, StagePlan
+from .validation import holdout_frames, resolve_holdout, validate_frames
 
 GOOD_STATE_EVERY = 100  # steps between in-memory copies of the last good state
 
@@ -99,7 +100,16 @@ class Trainer:
             self.lpips = self.lpips.to(self.device).eval()
             for p in self.lpips.parameters():
                 p.requires_grad_(False)
-        self.data = TrainingData(scene, self.background, config.crop_margin)
+        self.holdout = resolve_holdout(scene, config.holdout)
+        self.val_frames = holdout_frames(len(scene.frames), self.holdout)
+        self.data = TrainingData(scene, self.background, config.crop_margin,
+                                 [i for i in range(len(scene.frames)) if i not in set(self.val_frames)])
+        if not self.val_frames and not scene.eval_views:  # nothing held out (one frame): report the fit
+            self.val_frames = [self.data.frames[int(k)] for k in np.linspace(0, len(self.data) - 1,
+                                                                              min(4, len(self.data)))]
+            self.val_kind = "training-view fit"
+        else:
+            self.val_kind = "held-out frames"
         # clocks: the whole run, and the running stage
         self.step_count = 0
         self.elapsed = 0.0  # seconds spent in steps and evaluations, accumulated over resumes
@@ -162,9 +172,10 @@ class Trainer:
         return self.stage_step, s.iters, self.stage_elapsed, s.minutes
 
     def next_frame(self) -> int:
-        """The next training frame: every frame once per epoch, in a random order."""
+        """The next training frame: every training frame once per epoch, in a random order."""
         if not self.epoch_order:
-            self.epoch_order = list(self.rng.permutation(len(self.scene.frames)))
+            frames = self.data.frames
+            self.epoch_order = [frames[int(j)] for j in self.rng.permutation(len(frames))]
         return int(self.epoch_order.pop())
 
     # ----- one step ----------------------------------------------------------------------------
@@ -249,15 +260,28 @@ class Trainer:
         self.latest.update({k: v for k, v in summary.items() if v is not None})
         return rows, summary
 
+    def validate(self) -> tuple[list[dict], dict]:
+        """Seen-view validation on the held-out frames (or the training-view fit): rows and
+        ``val_psnr`` / ``val_ssim`` / ``val_alpha_iou`` / ``val_kind``."""
+        t0 = time.perf_counter()
+        rows, summary = validate_frames(self.state, self.scene, self.val_frames, self.background)
+        dt = time.perf_counter() - t0
+        self.elapsed += dt
+        self.stage_elapsed += dt
+        summary = {**summary, "val_kind": self.val_kind}
+        self.latest.update({k: v for k, v in summary.items() if v is not None})
+        return rows, summary
+
     def maybe_evaluate(self, force: bool = False) -> dict | None:
-        if not self.scene.eval_views:
-            return None
+        """Evaluation every ``eval_every_seconds``: the scene's evaluation views (ground truth from
+        other views, where it has them) and the seen-view validation."""
         if not force and self.elapsed - self._last_eval < self.config.eval_every_seconds:
             return None
-        rows, summary = self.evaluate()
+        rows, summary = self.evaluate() if self.scene.eval_views else ([], {})
+        val_rows, val_summary = self.validate() if self.val_frames else ([], {})
         self._last_eval = self.elapsed
         record = {"kind": "eval", "step": self.step_count, "elapsed": round(self.elapsed, 3), "stage": self.stage,
-                  **summary, "views": rows}
+                  **summary, **val_summary, "views": rows, "validation": val_rows}
         if self.log:
             self.log.append(record)
         return record

@@ -14,7 +14,7 @@ MAX_PLOT_POINTS = 1500
 
 
 def history_series(ui: PanelContext):
-    """(loss, seen PSNR, unseen PSNR) as (x, y) arrays over training time, rebuilt only when the
+    """(loss, seen PSNR, unseen PSNR, validation PSNR) as (x, y) arrays over training time, rebuilt only when the
     history grew (and thinned to at most MAX_PLOT_POINTS), or None before the first row."""
     key = ("history", ui.history_len)
     cached = ui.cache.get("history")
@@ -23,10 +23,10 @@ def history_series(ui: PanelContext):
     hist = ui.history()
     if not hist:
         return None
-    a = np.asarray([(r.elapsed, r.loss, r.seen_psnr, r.unseen_psnr) for r in hist], np.float64)
+    a = np.asarray([(r.elapsed, r.loss, r.seen_psnr, r.unseen_psnr, r.val_psnr) for r in hist], np.float64)
     if len(a) > MAX_PLOT_POINTS:
         a = a[np.linspace(0, len(a) - 1, MAX_PLOT_POINTS).astype(int)]
-    series = tuple(finite_xy(a[:, 0], a[:, k]) for k in (1, 2, 3))
+    series = tuple(finite_xy(a[:, 0], a[:, k]) for k in (1, 2, 3, 4))
     ui.cache["history"] = (key, series)
     return series
 
@@ -61,12 +61,13 @@ def draw(ui: PanelContext) -> None:
     series = history_series(ui)
     if series is not None:
         width = imgui.get_content_region_avail().x
-        loss, seen, unseen = series
+        loss, seen, unseen, val = series
         plot("loss##plot", "loss", [("loss", *loss)], width)
-        plot("PSNR (dB)##plot", "dB", [("seen", *seen), ("unseen", *unseen)], width)
+        curves = [(name, *xy) for name, xy in (("seen", seen), ("unseen", unseen), ("held-out", val)) if len(xy[0])]
+        plot("PSNR (dB)##plot", "dB", curves or [("seen", *seen)], width)
         imgui.text_disabled("x: training time (s)")
         first = True
-        for key in ("seen_psnr", "unseen_psnr"):
+        for key in ("seen_psnr", "unseen_psnr", "val_psnr"):
             v = st.metrics.get(key)
             if isinstance(v, (int, float)) and math.isfinite(v):
                 if not first:
