@@ -8,6 +8,7 @@ import torch
 
 import smpl_synth as S
 from reconstruct.body import smpl_backend as B
+from reconstruct.body.spec import smpl_body_spec
 from reconstruct.body.uv_map import build_uv_map
 
 BETAS = np.linspace(-1.0, 1.0, 10)
@@ -26,7 +27,7 @@ def arrays():
 
 @pytest.fixture(scope="module")
 def body(model_dirs):
-    return B.smpl_body_spec(BETAS, "neutral", model_dirs["npz"]).build()
+    return smpl_body_spec(BETAS, "neutral", model_dirs["npz"]).build()
 
 
 def random_pose(seed):
@@ -139,12 +140,12 @@ def test_missing_files_name_the_file_and_every_place(tmp_path, monkeypatch, mode
     (tmp_path / "given").mkdir()
     (tmp_path / "given" / "SMPL_NEUTRAL.npz").write_bytes((model_dirs["npz"] / "SMPL_NEUTRAL.npz").read_bytes())
     with pytest.raises(B.SMPLFilesError, match=r"UV layout file not found: looked for smpl_uv.obj"):
-        B.smpl_body_spec((), "neutral", tmp_path / "given").build()
+        smpl_body_spec((), "neutral", tmp_path / "given").build()
     # found through the environment variable
     (tmp_path / "env").mkdir()
     for name in ("SMPL_NEUTRAL.npz", "smpl_uv.obj"):
         (tmp_path / "env" / name).write_bytes((model_dirs["npz"] / name).read_bytes())
-    assert B.smpl_body_spec().build().num_joints == 24
+    assert smpl_body_spec().build().num_joints == 24
 
 
 def test_bad_model_file_is_named(tmp_path, arrays):

@@ -53,3 +53,9 @@ def test_library_does_not_import_the_run_folder_or_the_app():
     for folder in ("reconstruct/train", "reconstruct/stage2", "reconstruct/avatar", "reconstruct/body",
                    "reconstruct/data", "reconstruct/raster", "reconstruct/priors", "reconstruct/metrics"):
         assert offenders(folder, ("reconstruct.run_folder", "app")) == {}, folder
+
+
+def test_body_backends_do_not_import_the_backend_table():
+    """spec.py's table builds the backends; a backend that imported it back would close a circle."""
+    for name in ("anny_backend.py", "smpl_backend.py"):
+        assert "reconstruct.body.spec" not in imported_modules(ROOT / "reconstruct/body" / name), name

@@ -11,6 +11,7 @@ import pytest
 import smpl_synth as S
 
 from reconstruct.body import smpl_backend as B
+from reconstruct.body.spec import smpl_body_spec
 from reconstruct.motion import MotionFileError, load_motion, retarget
 from reconstruct.motion.body_kinematics import BodySkeleton
 from reconstruct.motion.rotations import (
@@ -64,7 +65,7 @@ def save(path, layout: str, full: np.ndarray, trans: np.ndarray, fps_key: str | 
 @pytest.fixture(scope="module")
 def smpl_body(tmp_path_factory):
     folder = S.write_model(tmp_path_factory.mktemp("smpl"), fmt="npz").parent
-    return B.smpl_body_spec(BETAS, "neutral", folder).build()
+    return smpl_body_spec(BETAS, "neutral", folder).build()
 
 
 @pytest.mark.parametrize("layout", ["smpl", "smplh", "smplx", "split"])

@@ -364,18 +364,6 @@ def parse_betas(text: str) -> np.ndarray:
     return np.array([float(s) for s in str(text).split(",") if s.strip()], np.float64)
 
 
-def smpl_body_spec(betas=(), gender: str = "neutral", smpl_dir: str | os.PathLike | None = None):
-    """The (hashable) BodySpec of an SMPL body: betas are kept as a text list."""
-    from .spec import BodySpec
-
-    if gender not in GENDERS:
-        raise ValueError(f"SMPL gender must be one of {GENDERS}, found {gender!r}")
-    params = {"gender": gender, "betas": format_betas(betas)}
-    if smpl_dir:
-        params["smpl_dir"] = str(Path(smpl_dir).expanduser().resolve())
-    return BodySpec("smpl", tuple(sorted(params.items())))
-
-
 @lru_cache(maxsize=8)
 def _load_files(model_path: str, mtime: float, uv_path: str, uv_mtime: float):
     return load_model_arrays(model_path), read_uv_obj(uv_path)

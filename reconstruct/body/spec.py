@@ -7,8 +7,10 @@ scenes carry a BodySpec, the body package builds from it."""
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from functools import lru_cache
+from pathlib import Path
 from typing import Callable
 
 from .base import BodyModel
@@ -58,3 +60,15 @@ def build_body(spec: BodySpec) -> BodyModel:
     if backend is None:
         raise ValueError(f"unknown body model {spec.model!r}; available: {', '.join(repr(k) for k in BACKENDS)}")
     return backend(dict(spec.params))
+
+
+def smpl_body_spec(betas=(), gender: str = "neutral", smpl_dir: str | os.PathLike | None = None) -> BodySpec:
+    """The (hashable) BodySpec of an SMPL body: betas are kept as a text list."""
+    from .smpl_backend import GENDERS, format_betas
+
+    if gender not in GENDERS:
+        raise ValueError(f"SMPL gender must be one of {GENDERS}, found {gender!r}")
+    params = {"gender": gender, "betas": format_betas(betas)}
+    if smpl_dir:
+        params["smpl_dir"] = str(Path(smpl_dir).expanduser().resolve())
+    return BodySpec("smpl", tuple(sorted(params.items())))

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...body.smpl_backend import smpl_body_pose, smpl_body_spec
+from ...body.smpl_backend import smpl_body_pose
+from ...body.spec import smpl_body_spec
 from ...safe_pickle import SafeLoadError, load_npy_object
 from ..scene import Scene
 from .common import (LoaderError, Protocol, check_size, finish_frame, frame_number, make_eval_view, opencv_camera,

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...body.smpl_backend import smpl_body_pose, smpl_body_spec
+from ...body.smpl_backend import smpl_body_pose
+from ...body.spec import smpl_body_spec
 from ..scene import EvalView, Scene
 from .common import (IMAGE_EXTS, LoaderError, Protocol, check_size, finish_frame, opencv_camera, read_mask_array,
                      read_rgb, smpl_shape_error)

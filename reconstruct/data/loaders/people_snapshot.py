@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...body.smpl_backend import smpl_body_pose, smpl_body_spec
+from ...body.smpl_backend import smpl_body_pose
+from ...body.spec import smpl_body_spec
 from ..scene import EvalView, Scene
 from .common import (LoaderError, Protocol, check_size, finish_frame, match_counts, numbered_files, opencv_camera,
                      read_mask, read_rgb, smpl_shape_error)
