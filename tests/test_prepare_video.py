@@ -65,6 +65,14 @@ def _detector_python() -> str | None:
         return None
 
 
+def _truth_mask(mask: np.ndarray, scene_folder: Path) -> np.ndarray:
+    """The ground-truth mask in the scene's (cropped, resized) frame."""
+    from reconstruct.data.prepare.crop import Crop, apply_crop
+
+    crop = Crop(**json.loads((scene_folder / "prepare_report.json").read_text())["crop"])
+    return apply_crop(mask[None].astype(np.float32), crop, resample="bilinear")[0]
+
+
 def _fit_errors(synth, scene_folder: Path, scale_align: bool = False) -> tuple[np.ndarray, np.ndarray, list[int]]:
     scene = read_scene(scene_folder)
     gt = {f.index: f for f in synth.frames}
@@ -74,7 +82,7 @@ def _fit_errors(synth, scene_folder: Path, scale_align: bool = False) -> tuple[n
                        [gt[i].pose for i in used], gt[used[0]].camera, scale_align=scale_align)
     faces = fit_body.faces.numpy()
     ious = np.array([mask_iou(mesh_silhouette(fit_body.posed_vertices(f.pose).numpy(), faces, f.camera).astype(float),
-                              gt[f.index].mask) for f in scene.frames])
+                              _truth_mask(gt[f.index].mask, scene_folder)) for f in scene.frames])
     return err, ious, used
 
 
@@ -116,12 +124,13 @@ def test_prepare_mediapipe_end_to_end(synth, video, tmp_path, capsys):
           f"per joint {np.round(100 * err.mean(0), 1).tolist()}; IoU vs truth {ious.mean():.3f} (min {ious.min():.3f}); "
           f"keypoints {report['mean_keypoint_px_error']:.2f} px; IoU vs detected mask "
           f"{report['mean_silhouette_iou']:.3f}; {report['seconds']}")
-    # measured here: scale-aligned 5.3 cm (canonical limbs 7.8 cm), raw 8.6 cm (the default body is 20 cm
-    # shorter than the scene's: that alone gives 6.1 cm), IoU vs truth 0.81 (min 0.78), 2.4 px
-    assert nerr.mean() < 0.07 and nerr.mean() < 0.85 * nbase
-    assert err.mean() < 0.11
-    assert ious.mean() > 0.76 and ious.min() > 0.7
+    # measured here (shape fitted with the poses, silhouette at 128 px, GrabCut-refined masks):
+    # scale-aligned 4.0 cm, raw 5.8 cm, IoU vs truth 0.909 (min 0.895), 2.7 px. Before: 5.3 / 8.6 cm, 0.81
+    assert nerr.mean() < 0.045 and nerr.mean() < 0.7 * nbase
+    assert err.mean() < 0.07
+    assert ious.mean() > 0.88 and ious.min() > 0.85
     assert report["mean_keypoint_px_error"] < 4.0
+    assert (out / "prepare_report.png").is_file() and report["person"]["people_found"] == 1
     # the scene folder loads through the ordinary loader
     from reconstruct.data.load import load_scene
 
@@ -190,11 +199,11 @@ def test_prepare_fit_with_test_double(synth, video, tmp_path):
           f"joint error {100 * err.mean():.2f} cm (limbs in canonical pose: {100 * baseline:.2f} cm), "
           f"per joint {np.round(100 * err.mean(0), 1).tolist()}; IoU vs truth {ious.mean():.3f}; "
           f"keypoints {report['mean_keypoint_px_error']:.2f} px; fit {report['seconds']['fit']:.1f} s")
-    # measured here: scale-aligned 5.6 cm (canonical limbs 8.5 cm), raw 8.8 cm, IoU 0.90, keypoints 1.0 px
-    # (the fitted body's default phenotype differs from the scene's, so none reaches 0 / 1)
-    assert nerr.mean() < 0.07 and nerr.mean() < 0.8 * nbase
-    assert err.mean() < 0.11
-    assert ious.mean() > 0.85
+    # measured here: scale-aligned 3.6 cm (canonical limbs 8.9 cm), raw 4.7 cm, IoU 0.954, keypoints 0.8 px
+    # (before the shape fit: 5.6 / 8.8 cm, 0.90); the scene's 1.82 m body is 12 cm above the stature prior
+    assert nerr.mean() < 0.05 and nerr.mean() < 0.6 * nbase
+    assert err.mean() < 0.065
+    assert ious.mean() > 0.92
     assert report["mean_keypoint_px_error"] < 2.0
 
 
@@ -224,7 +233,7 @@ def test_unreadable_video_is_named_and_leaves_nothing(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "garbage.mp4: cannot be read as a video (expected a video file" in err
     assert main(["prepare", str(tmp_path / "missing.mov"), "--out", str(out)]) == 2
-    assert "missing.mov: no such video file" in capsys.readouterr().err
+    assert "missing.mov: no such video, image or folder" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["garbage.mp4"]
 
 

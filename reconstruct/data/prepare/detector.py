@@ -54,6 +54,8 @@ class Detections:
     found: np.ndarray
     source: str = ""
     info: dict = field(default_factory=dict)
+    raw_masks: np.ndarray | None = None  # (T,H,W) the segmenter's masks before refinement, if refined
+    refine_used: np.ndarray | None = None  # (T,) where the refinement was kept
 
     def __post_init__(self) -> None:
         T = len(self.found)
@@ -90,7 +92,28 @@ class Detections:
     def select(self, keep: np.ndarray) -> "Detections":
         keep = np.asarray(keep)
         return Detections(self.keypoints[keep], self.visibility[keep], None if self.world is None else self.world[keep],
-                          self.masks[keep], self.found[keep], self.source, dict(self.info))
+                          self.masks[keep], self.found[keep], self.source, dict(self.info),
+                          None if self.raw_masks is None else self.raw_masks[keep],
+                          None if self.refine_used is None else self.refine_used[keep])
+
+
+@dataclass
+class PersonCandidate:
+    """One person found in one image: box (x0, y0, x1, y1) in pixels, their segmentation (H,W) bool,
+    keypoints (33,2) pixels and visibility (33,)."""
+
+    box: tuple[float, float, float, float]
+    region: np.ndarray
+    keypoints: np.ndarray
+    visibility: np.ndarray
+
+    @property
+    def center(self) -> tuple[float, float]:
+        return 0.5 * (self.box[0] + self.box[2]), 0.5 * (self.box[1] + self.box[3])
+
+    @property
+    def height(self) -> float:
+        return float(self.box[3] - self.box[1])
 
 
 class PersonDetector(ABC):
@@ -99,6 +122,11 @@ class PersonDetector(ABC):
     @abstractmethod
     def detect(self, frames: np.ndarray) -> Detections:
         """Detections for frames (T,H,W,3) uint8 RGB."""
+
+    def find_people(self, frames: np.ndarray) -> list[list[PersonCandidate]] | None:
+        """Everyone in each of the frames (T,H,W,3) uint8, or None when the detector cannot tell people
+        apart (then the whole frame is taken as one person's)."""
+        return None
 
     def describe(self) -> dict:
         return {"name": self.name}
@@ -134,8 +162,13 @@ def parse_mediapipe_output(path: str | os.PathLike, width: int, height: int) -> 
         if not np.any(world[found]):
             world = None  # the worker got no 3D landmarks
     masks = masks.astype(np.float32) / (255.0 if masks.dtype == np.uint8 else 1.0)
+    raw = used = None
+    with np.load(path) as z:
+        if "raw_masks" in z.files:
+            raw = z["raw_masks"].astype(np.float32) / 255.0
+            used = z["refine_used"].astype(bool)
     return Detections(keypoints, visibility, world, masks, found, source=f"mediapipe {version}",
-                      info={"mediapipe_version": version})
+                      info={"mediapipe_version": version}, raw_masks=raw, refine_used=used)
 
 
 def _can_import_mediapipe(python: str) -> tuple[bool, str]:
@@ -178,8 +211,9 @@ class MediapipeDetector(PersonDetector):
     name = "mediapipe"
 
     def __init__(self, python: str | os.PathLike | None = None, *, model_complexity: int = 1,
-                 timeout_s: float | None = None) -> None:
+                 timeout_s: float | None = None, refine: bool = True) -> None:
         self.requested_python = python
+        self.refine = bool(refine)
         self.model_complexity = int(model_complexity)
         self.timeout_s = timeout_s
         self._python: tuple[str, str] | None = None
@@ -192,13 +226,13 @@ class MediapipeDetector(PersonDetector):
     def describe(self) -> dict:
         python, version = self.resolve()
         return {"name": self.name, "python": python, "mediapipe_version": version,
-                "model_complexity": self.model_complexity}
+                "model_complexity": self.model_complexity, "mask_refinement": "grabcut" if self.refine else "none"}
 
-    def detect(self, frames: np.ndarray) -> Detections:
+    def _run(self, frames: np.ndarray, extra: list[str], parse):
         python, _ = self.resolve()
         if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
             raise ValueError(f"MediapipeDetector: expected frames (T,H,W,3) uint8, found {frames.shape} {frames.dtype}")
-        T, H, W = frames.shape[:3]
+        T = frames.shape[0]
         with tempfile.TemporaryDirectory(prefix="wonderhuman-mediapipe-") as tmp:
             inp, out = Path(tmp) / "frames.npz", Path(tmp) / "detections.npz"
             np.savez(inp, images=frames)
@@ -206,7 +240,7 @@ class MediapipeDetector(PersonDetector):
             env.pop("PYTHONPATH", None)  # the worker must not see this venv's packages (numpy 2)
             try:
                 proc = subprocess.run([python, str(WORKER), str(inp), str(out),
-                                       "--model-complexity", str(self.model_complexity)],
+                                       "--model-complexity", str(self.model_complexity), *extra],
                                       capture_output=True, text=True, timeout=self.timeout_s, env=env)
             except subprocess.TimeoutExpired as exc:
                 raise DetectorError(f"the mediapipe worker ({python}) did not finish {T} frames within "
@@ -215,4 +249,48 @@ class MediapipeDetector(PersonDetector):
                 tail = "\n".join(proc.stderr.strip().splitlines()[-8:])
                 raise DetectorError(f"the mediapipe worker ({python} {WORKER.name}) failed with exit code "
                                     f"{proc.returncode}:\n{tail}")
-            return parse_mediapipe_output(out, W, H)
+            return parse(out)
+
+    def detect(self, frames: np.ndarray) -> Detections:
+        H, W = frames.shape[1:3]
+        return self._run(frames, ["--refine"] if self.refine else [], lambda p: parse_mediapipe_output(p, W, H))
+
+    def find_people(self, frames: np.ndarray) -> list[list[PersonCandidate]]:
+        H, W = frames.shape[1:3]
+        return self._run(frames, ["--mode", "people"], lambda p: parse_people_output(p, W, H))
+
+
+def parse_people_output(path: str | os.PathLike, width: int, height: int) -> list[list[PersonCandidate]]:
+    """The worker's ``--mode people`` output -> per frame, the people found."""
+    path = Path(path)
+    try:
+        with np.load(path) as z:
+            count, people, regions = z["count"], z["people"], z["regions"]
+    except Exception as exc:  # noqa: BLE001 - any unreadable file
+        raise DetectorError(f"{path}: the mediapipe worker's people output cannot be read: {exc}") from exc
+    out = []
+    for i in range(len(count)):
+        frame = []
+        for p in range(int(count[i])):
+            lm = people[i, p].astype(np.float64)
+            kp = lm[:, :2] * np.array([width, height])
+            region = regions[i, p] > 127
+            frame.append(PersonCandidate(_person_box(kp, lm[:, 3], region), region, kp, np.clip(lm[:, 3], 0, 1)))
+        out.append(frame)
+    return out
+
+
+def _person_box(kp: np.ndarray, vis: np.ndarray, region: np.ndarray) -> tuple[float, float, float, float]:
+    """A person's box: their landmarks (grown for head and feet) joined with their segmentation."""
+    seen = vis >= 0.3
+    pts = kp[seen] if seen.sum() >= 4 else kp
+    x0, y0 = pts.min(0)
+    x1, y1 = pts.max(0)
+    h = max(y1 - y0, 1.0)
+    x0, y0, x1, y1 = x0 - 0.1 * h, y0 - 0.2 * h, x1 + 0.1 * h, y1 + 0.06 * h
+    if region.any():
+        ys, xs = np.nonzero(region)
+        x0, y0 = min(x0, xs.min()), min(y0, ys.min())
+        x1, y1 = max(x1, xs.max() + 1), max(y1, ys.max() + 1)
+    H, W = region.shape
+    return float(max(0, x0)), float(max(0, y0)), float(min(W, x1)), float(min(H, y1))

@@ -1,20 +1,29 @@
 """Fit the body model's pose per frame and one pinhole camera to detected keypoints and silhouettes.
 
 Unknowns: per frame the rotations of the bones mediapipe observes (``FIT_BONES``), a global
-orientation and a translation; for the whole video the focal length (from a field-of-view guess,
-refined once, with a prior). The camera stands at the world origin's front (-Y, looking +Y, Z up,
-like the synthetic scenes' training camera) at a distance estimated from the torso's size in pixels.
+orientation and a translation; for the whole video the focal length (from a field-of-view guess and the
+crop, ``CameraGuess``, with a prior), the camera's pitch and, with a ``ShapeBasis``, Anny's phenotype.
+The camera stands at the world origin's front (-Y, looking +Y, Z up, like the synthetic scenes' training
+camera) at a distance estimated from the torso's size in pixels; at the end the world is levelled
+(``_level``) so the body stands upright on average.
 
 Losses (all frames at once, Adam):
   keypoints   confidence-weighted robust reprojection error of the body's points for the landmarks
               (``keypoints.LANDMARK_TARGETS``), in units of the image height;
   directions  1 - cos between the body's limb directions in camera space and mediapipe's 3D world
               landmarks (they resolve part of the depth ambiguity of 2D keypoints);
-  silhouette  1 - soft IoU between the body's alpha, splatted from a subset of posed mesh vertices as
-              small Gaussians with the differentiable rasterizer at low resolution, and the person mask;
+  silhouette  1 - soft IoU between the body's alpha, splatted from points spread evenly over the posed
+              surface as small Gaussians with the differentiable rasterizer at 128 px, and the person mask
+              grown by one pixel (the splats reach that far beyond the mesh's edge); the focal length is
+              held during this stage;
   prior       L2 on the bone rotations (heavier on spine and neck, on the off-axis parts of knees
               and elbows), a penalty on knees and elbows bending backwards;
-  smoothness  squared second differences over time of rotations, orientation and translation.
+  smoothness  squared second differences over time of rotations, orientation and translation;
+  upright     where one view cannot tell depth (the body barely turns; the person barely moves), a
+              prior that keeps the body's up axis vertical and the legs under the hips (no common
+              forward/backward swing of both legs; for a static person no swing at all);
+  shape       with a ``ShapeBasis`` the Anny phenotype is fitted jointly (linearised rest geometry,
+              Gaussian prior around the base phenotype).
 """
 
 from __future__ import annotations
@@ -31,7 +40,8 @@ from ...body.lbs import apply_points, blend
 from ...body.pose import BodyPose, axis_angle_to_matrix, rigid
 from ...camera import Camera
 from .detector import Detections
-from .keypoints import SEGMENTS, KeypointMap
+from .keypoints import SEGMENTS, KeypointMap, require_bones
+from .shape import ShapeBasis
 from .silhouette import mesh_silhouette
 
 FIT_BONES = ("spine03", "spine01", "neck01", "head", "upperarm01.L", "upperarm01.R", "lowerarm01.L",
@@ -50,19 +60,36 @@ class FitConfig:
     fov_y_deg: float = 50.0  # field-of-view guess for the focal length (refined with a prior)
     refine_focal: bool = True
     keypoint_iters: int = 300
-    silhouette_iters: int = 30
+    silhouette_iters: int = 60
     lr: float = 0.03
-    silhouette_size: int = 64  # longer side of the silhouette images during the fit
-    splat_vertices: int = 2500
+    silhouette_size: int = 128  # longer side of the silhouette images during the fit
+    splat_vertices: int = 4000  # surface points splatted for the silhouette
     w_keypoints: float = 1.0
     w_directions: float = 0.1
-    w_silhouette: float = 0.02
+    w_silhouette: float = 0.1
     w_prior: float = 2e-4
     w_smooth: float = 0.3
     w_focal: float = 1e-3  # prior on log(focal / guess)
     min_visibility: float = 0.5  # landmarks below this confidence count as unseen in the reported error
     seed: int = 0
     threads: int = 1  # torch threads during the fit (its tensors are small: one thread is fastest)
+    fit_shape: bool = True  # fit Anny's phenotype jointly with the poses
+    w_shape: float = 2e-4  # prior on the phenotype offsets (in units of their prior std)
+    w_upright: float = 1.0  # keeps the body's up axis vertical where depth is ambiguous
+    w_legs: float = 0.2  # keeps the legs under the hips where depth is ambiguous
+    upright: str = "auto"  # auto (from how much the body turns and moves), on, off
+    stature_m: float | None = None  # the person's height if known (else a population prior)
+    w_pitch: float = 0.02  # prior toward a level camera (on the pitch in radians, squared)
+
+
+@dataclass
+class CameraGuess:
+    """Intrinsics guess for the fitted images: focal length and principal point in pixels (a crop of a
+    larger frame moves the principal point off the image centre and scales the focal length)."""
+
+    focal_px: float
+    cx: float
+    cy: float
 
 
 @dataclass
@@ -75,6 +102,8 @@ class FitResult:
     focal_guess: float
     seconds: float
     history: dict = field(default_factory=dict)
+    phenotype: dict | None = None  # fitted Anny phenotype (None: the body was kept)
+    depth_ambiguity: dict = field(default_factory=dict)  # how strongly the upright prior was applied
 
 
 def camera_rotation() -> np.ndarray:
@@ -118,22 +147,28 @@ class _Kinematics:
             full[self.ids] = test[0]
             self.fast = bool((self._fast(test)[0] - body.rest_to_pose_transforms(full)).abs().max() < 1e-8)
 
-    def _fast(self, rot: torch.Tensor) -> torch.Tensor:
+    def _fast(self, rot: torch.Tensor, T0: torch.Tensor | None = None, q: torch.Tensor | None = None) -> torch.Tensor:
         T = rot.shape[0]
+        T0 = self.T0 if T0 is None else T0
+        q = self.q if q is None else q
         D = axis_angle_to_matrix(rot)  # (T,B,3,3)
-        A = rigid(D, self.q - (D @ self.q[..., None])[..., 0])  # rotations about the zero-pose heads
+        A = rigid(D, q - (D @ q[..., None])[..., 0])  # rotations about the zero-pose heads
         E: list[torch.Tensor | None] = [None] * len(self.ids)
         for k in self.order:
             p = self.parent_slot[k]
             E[k] = A[:, k] if p < 0 else E[p] @ A[:, k]
         eye = torch.eye(4, dtype=rot.dtype).expand(T, 1, 4, 4)
         stack = torch.cat([eye, torch.stack(E, dim=1)], dim=1)  # (T,1+B,4,4)
-        return stack[:, self.gather] @ self.T0
+        return stack[:, self.gather] @ T0
 
-    def __call__(self, rot: torch.Tensor) -> torch.Tensor:
-        """rot (T,B,3) rotations of ``bones`` -> (T,J,4,4)."""
+    def with_rest(self, zero_pose: torch.Tensor, rest_joints: torch.Tensor):
+        """(T0, q) for another rest geometry (zero-pose transforms (J,4,4), rest joints (J,3))."""
+        return zero_pose, apply_points(zero_pose, rest_joints)[self.ids]
+
+    def __call__(self, rot: torch.Tensor, rest=None) -> torch.Tensor:
+        """rot (T,B,3) rotations of ``bones`` -> (T,J,4,4); ``rest`` = ``with_rest(...)`` for another shape."""
         if self.fast:
-            return self._fast(rot)
+            return self._fast(rot) if rest is None else self._fast(rot, *rest)
         J = self.body.num_joints
         out = []
         for r in rot:
@@ -149,16 +184,37 @@ def _depth(parents: np.ndarray, c: int) -> int:
     return d
 
 
-def _splat_subset(body: BodyModel, count: int, seed: int) -> tuple[torch.Tensor, float]:
-    """Indices of ``count`` mesh vertices spread over the surface and a Gaussian scale that covers it."""
-    V = body.canonical_vertices
-    rng = np.random.default_rng(seed)
-    idx = torch.as_tensor(np.sort(rng.choice(V.shape[0], size=min(count, V.shape[0]), replace=False)))
-    pts = V[idx].float()
-    d = torch.cdist(pts, pts)
-    d.fill_diagonal_(float("inf"))
-    spacing = float(d.min(1).values.median())
-    return idx, spacing
+@dataclass
+class SurfaceSamples:
+    """Points spread evenly over the mesh surface (area-weighted), fixed in barycentric coordinates of
+    their triangles so they follow any rest geometry and the skinning: corners (N,3) vertex ids,
+    bary (N,3), and a splat scale (metres) that covers the surface without gaps."""
+
+    corners: torch.Tensor
+    bary: torch.Tensor
+    spacing: float
+
+    @classmethod
+    def build(cls, body: BodyModel, count: int, seed: int) -> "SurfaceSamples":
+        V = body.canonical_vertices.numpy()
+        F = body.faces.numpy()
+        a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+        rng = np.random.default_rng(seed)
+        f = rng.choice(len(F), size=count, p=area / area.sum())
+        u, v = rng.random(count), rng.random(count)
+        flip = u + v > 1
+        u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+        bary = np.stack([1 - u - v, u, v], 1)
+        spacing = float(np.sqrt(area.sum() / count))
+        return cls(torch.as_tensor(F[f]), torch.as_tensor(bary), spacing)
+
+    def weights(self, body: BodyModel) -> torch.Tensor:
+        return (body.skin_weights[self.corners] * self.bary[..., None]).sum(1)
+
+    def rest(self, vertices: torch.Tensor) -> torch.Tensor:
+        """(N,3) rest positions from rest vertices (V,3)."""
+        return (vertices[self.corners] * self.bary[..., None].to(vertices.dtype)).sum(1)
 
 
 def _soft_iou(alpha: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -179,17 +235,22 @@ def _robust(r2: torch.Tensor, eps: float) -> torch.Tensor:
 class _Problem:
     """The differentiable model: parameters -> keypoints, directions, vertices."""
 
-    def __init__(self, body: BodyModel, det: Detections, config: FitConfig) -> None:
-        self.body, self.det, self.cfg = body, det, config
+    def __init__(self, body: BodyModel, det: Detections, config: FitConfig, shape: ShapeBasis | None = None,
+                 guess: CameraGuess | None = None) -> None:
+        self.body, self.det, self.cfg, self.shape = body, det, config, shape
         self.kmap = KeypointMap.build(body)
+        require_bones(body, FIT_BONES)
         self.fit_ids = torch.as_tensor([body.bone_labels.index(b) for b in FIT_BONES])
         T = det.num_frames
         self.T = T
         self.width, self.height = det.width, det.height
         f64 = torch.float64
         self.R0 = torch.as_tensor(camera_rotation(), dtype=f64)
-        self.f_guess = self.height / (2.0 * math.tan(math.radians(config.fov_y_deg) / 2.0))
-        self.cx, self.cy = self.width / 2.0, self.height / 2.0
+        if guess is None:
+            self.f_guess = self.height / (2.0 * math.tan(math.radians(config.fov_y_deg) / 2.0))
+            self.cx, self.cy = self.width / 2.0, self.height / 2.0
+        else:
+            self.f_guess, self.cx, self.cy = float(guess.focal_px), float(guess.cx), float(guess.cy)
         kp = torch.as_tensor(det.keypoints[:, self.kmap.landmark_ids], dtype=f64)  # (T,K,2)
         vis = torch.as_tensor(det.visibility[:, self.kmap.landmark_ids], dtype=f64).clamp(0, 1)
         self.kp, self.kp_w = kp, vis * torch.as_tensor(self.kmap.weights, dtype=f64)
@@ -216,7 +277,16 @@ class _Problem:
                 prior[i] = torch.as_tensor(_PRIOR[name], dtype=f64)
         self.prior_w = prior
         self.hinge = [(FIT_BONES.index(n), s) for n, s in _HINGE_SIGN.items()]
+        self.legs = [FIT_BONES.index(n) for n in ("upperleg01.L", "upperleg01.R")]
+        self.shins = [FIT_BONES.index(n) for n in ("lowerleg01.L", "lowerleg01.R")]
+        if shape is not None:
+            if not self.kin.fast:
+                raise ValueError(f"body {body.name!r}: fitting the shape needs the fast kinematics")
+            self.z = torch.zeros(len(shape.keys), dtype=f64, requires_grad=True)
+        else:
+            self.z = None
         self._init_params()
+        self.ambiguity = depth_ambiguity(det, self.orient.detach().numpy()[:, 2], config.upright)
 
     # ----- initial guess -----------------------------------------------------------------------
     def _init_params(self) -> None:
@@ -248,6 +318,9 @@ class _Problem:
         self.orient = torch.as_tensor(np.stack([np.zeros(T), np.zeros(T), yaw], 1), dtype=f64).requires_grad_(True)
         self.transl = torch.as_tensor(transl, dtype=f64).requires_grad_(True)
         self.log_focal = torch.zeros((), dtype=f64, requires_grad=True)
+        # the camera's pitch (looking up or down at the person): without it a photo taken from above can
+        # only be explained by tilting the body, which the upright prior then fights
+        self.pitch = torch.zeros((), dtype=f64, requires_grad=True)
 
     # ----- forward -----------------------------------------------------------------------------
     @property
@@ -257,16 +330,36 @@ class _Problem:
     def fitted_rotations(self) -> torch.Tensor:
         return self.base_rot + self.rot
 
+    def rest(self):
+        """(kinematics rest, keypoint rest points) for the current shape, or (None, None) for the body's."""
+        if self.z is None:
+            return None, None
+        joints, zero = self.shape.joints(self.z), self.shape.zero_pose(self.z)
+        verts = self.shape.vertices(self.z)
+        return self.kin.with_rest(zero, joints), self.kmap.rest_points(joints, verts)
+
+    def rest_vertices(self, ids: torch.Tensor | None = None) -> torch.Tensor:
+        if self.z is None:
+            return self.body.rest_vertices if ids is None else self.body.rest_vertices[ids]
+        return self.shape.vertices(self.z, ids)
+
     def full_rotations(self) -> torch.Tensor:
         full = torch.zeros(self.T, self.body.num_joints, 3, dtype=torch.float64)
         return full.index_copy(1, self.fit_ids, self.fitted_rotations())
 
-    def transforms(self) -> torch.Tensor:
+    def transforms(self, rest=None) -> torch.Tensor:
         G = rigid(axis_angle_to_matrix(self.orient), self.transl)  # (T,4,4)
-        return G[:, None] @ self.kin(self.fitted_rotations())
+        return G[:, None] @ self.kin(self.fitted_rotations(), rest)
+
+    def rotation(self) -> torch.Tensor:
+        """World-to-camera rotation: the level camera ``R0`` pitched about the world's X axis."""
+        c, s = torch.cos(self.pitch), torch.sin(self.pitch)
+        one, zero = torch.ones_like(c), torch.zeros_like(c)
+        Rx = torch.stack([torch.stack([one, zero, zero]), torch.stack([zero, c, -s]), torch.stack([zero, s, c])])
+        return self.R0 @ Rx
 
     def to_camera(self, pts: torch.Tensor) -> torch.Tensor:
-        return pts @ self.R0.T + self.t0
+        return pts @ self.rotation().T + self.t0
 
     def project(self, pc: torch.Tensor, focal: torch.Tensor) -> torch.Tensor:
         z = pc[..., 2:3].clamp_min(1e-3)
@@ -275,7 +368,8 @@ class _Problem:
     def camera(self, width: int | None = None, height: int | None = None) -> Camera:
         f = float(self.focal.detach())
         K = np.array([[f, 0.0, self.cx], [0.0, f, self.cy], [0.0, 0.0, 1.0]])
-        cam = Camera(K, camera_rotation(), self.t0.numpy().copy(), self.width, self.height, name=CAMERA_NAME)
+        cam = Camera(K, self.rotation().detach().numpy(), self.t0.numpy().copy(), self.width, self.height,
+                     name=CAMERA_NAME)
         return cam if width is None else cam.scaled(width, height)
 
     def poses(self) -> list[BodyPose]:
@@ -291,44 +385,79 @@ def _second_diff(x: torch.Tensor) -> torch.Tensor:
     return (d * d).sum(dim=tuple(range(1, d.ndim))).mean()
 
 
-def render_alpha(body: BodyModel, transforms: torch.Tensor, camera: Camera, vertex_ids: torch.Tensor,
-                 sigma: float, *, dtype=torch.float32) -> torch.Tensor:
-    """Differentiable alpha (H,W) of the posed body: its vertices ``vertex_ids`` splatted as isotropic
-    Gaussians of standard deviation ``sigma`` (metres), for one frame's transforms (J,4,4)."""
+def depth_ambiguity(det: Detections, yaw: np.ndarray, mode: str = "auto") -> dict:
+    """How little the frames tell about depth: ``turn`` in [0, 1] is 1 when the body turns less than
+    15 degrees over the clip (0 beyond 45: side views show a lean), ``static`` in [0, 1] is 1 when the
+    keypoints barely move relative to the hips (a single image, a person standing still: 1)."""
+    if mode not in ("auto", "on", "off"):
+        raise ValueError(f"upright prior: expected auto, on or off, found {mode!r}")
+    if mode != "auto":
+        v = 1.0 if mode == "on" else 0.0
+        return {"turn": v, "static": v, "yaw_range_deg": float("nan"), "motion": float("nan"), "mode": mode}
+    yaw_range = float(np.degrees(np.ptp(yaw))) if len(yaw) > 1 else 0.0
+    turn = float(np.clip(1.0 - (yaw_range - 15.0) / 30.0, 0.0, 1.0))
+    L = det.landmark_index
+    kp, vis = det.keypoints, det.visibility
+    hips = 0.5 * (kp[:, L("left_hip")] + kp[:, L("right_hip")])
+    sh = 0.5 * (kp[:, L("left_shoulder")] + kp[:, L("right_shoulder")])
+    torso = max(float(np.median(np.linalg.norm(sh - hips, axis=1))), 1.0)
+    motion = 0.0
+    if len(kp) > 1:
+        ids = [L(n) for n in ("left_wrist", "right_wrist", "left_knee", "right_knee", "left_ankle", "right_ankle")]
+        rel = (kp[:, ids] - hips[:, None]) / torso
+        seen = vis[:, ids] >= 0.5
+        stds = [float(rel[seen[:, k], k].std(0).max()) for k in range(len(ids)) if seen[:, k].sum() > 1]
+        motion = float(np.median(stds)) if stds else 0.0
+    static = float(np.clip(1.0 - (motion - 0.05) / 0.15, 0.0, 1.0))
+    return {"turn": turn, "static": static, "yaw_range_deg": yaw_range, "motion": motion, "mode": mode}
+
+
+def render_alpha(weights: torch.Tensor, rest: torch.Tensor, transforms: torch.Tensor, camera: Camera,
+                 sigma: float, *, dtype=torch.float32, eps2d: float = 0.05, opacity: float = 0.95) -> torch.Tensor:
+    """Differentiable alpha (H,W) of the posed body: surface points (skinning ``weights`` (N,J), ``rest``
+    positions (N,3)) splatted as isotropic Gaussians of standard deviation ``sigma`` (metres), for one
+    frame's transforms (J,4,4)."""
     from ...raster import rasterization
 
-    M = blend(body.skin_weights[vertex_ids], transforms)
-    means = apply_points(M, body.rest_vertices[vertex_ids]).to(dtype)
+    M = blend(weights, transforms)
+    means = apply_points(M, rest).to(dtype)
     N = means.shape[0]
     quats = torch.zeros(N, 4, dtype=dtype)
     quats[:, 0] = 1.0
     scales = torch.full((N, 3), sigma, dtype=dtype)
-    opac = torch.full((N,), 0.95, dtype=dtype)
+    opac = torch.full((N,), opacity, dtype=dtype)
     feats = torch.ones(N, 1, dtype=dtype)
-    return rasterization(means, quats, scales, opac, feats, camera).alpha
+    return rasterization(means, quats, scales, opac, feats, camera, eps2d=eps2d).alpha
 
 
-def fit_poses(body: BodyModel, det: Detections, config: FitConfig = FitConfig(), *,
-              log=None) -> FitResult:
-    """Fit poses and camera to the detections of the frames where a person was found."""
+def fit_poses(body: BodyModel, det: Detections, config: FitConfig = FitConfig(), *, shape: ShapeBasis | None = None,
+              guess: CameraGuess | None = None, log=None) -> FitResult:
+    """Fit poses and camera (and, with ``shape``, Anny's phenotype) to the detections of the frames
+    where a person was found. ``body`` is the body at ``shape``'s base phenotype."""
     threads = torch.get_num_threads()
     torch.set_num_threads(max(1, config.threads))
     try:
-        return _fit(body, det, config, log)
+        return _fit(body, det, config, shape if config.fit_shape else None, guess, log)
     finally:
         torch.set_num_threads(threads)
 
 
-def _fit(body: BodyModel, det: Detections, config: FitConfig, log) -> FitResult:
+def _up_axis(orient: torch.Tensor) -> torch.Tensor:
+    return axis_angle_to_matrix(orient)[..., :, 2]  # (T,3) the body's +Z in the world
+
+
+def _fit(body: BodyModel, det: Detections, config: FitConfig, shape: ShapeBasis | None, guess: CameraGuess | None,
+         log) -> FitResult:
     t_start = time.perf_counter()
     torch.manual_seed(config.seed)
-    P = _Problem(body, det, config)
+    P = _Problem(body, det, config, shape, guess)
     H, W = det.height, det.width
     diag = float(H)
     hist: dict[str, list] = {"loss": []}
+    amb = P.ambiguity
 
-    def keypoint_terms(Tr: torch.Tensor, focal: torch.Tensor) -> torch.Tensor:
-        pts = P.kmap.points(Tr)  # (T,K,3) world
+    def keypoint_terms(Tr: torch.Tensor, focal: torch.Tensor, kp_rest) -> torch.Tensor:
+        pts = P.kmap.points(Tr, kp_rest)  # (T,K,3) world
         pc = P.to_camera(pts)
         uv = P.project(pc, focal)
         r2 = ((uv - P.kp) / diag).pow(2).sum(-1)
@@ -348,20 +477,45 @@ def _fit(body: BodyModel, det: Detections, config: FitConfig, log) -> FitResult:
             prior = prior + 10.0 * torch.relu(-sign * rot[:, i, 0]).pow(2).mean()
         smooth = _second_diff(rot) + _second_diff(P.orient) + 10.0 * _second_diff(P.transl)
         focal = (P.log_focal ** 2)
-        return config.w_prior * prior + config.w_smooth * smooth + config.w_focal * focal
+        total = config.w_prior * prior + config.w_smooth * smooth + config.w_focal * focal + config.w_pitch * P.pitch ** 2
+        # gravity is never seen directly: a camera looking down and a body leaning forward look alike from
+        # the front. The camera gets a prior toward level, the body toward upright (fully where the body
+        # barely turns; a tenth of that where turning shows a lean from the side)
+        tilt = (1.0 - _up_axis(P.orient)[:, 2]).mean()
+        total = total + config.w_upright * max(0.1, amb["turn"]) * tilt
+        if amb["turn"] > 0:
+            # upright: the body's up axis stays vertical; legs: no common sagittal swing of both legs
+            # (that is a lean seen from the side), and for a static person no swing at all
+            swing = P.fitted_rotations()[:, P.legs, 0]
+            knee = rot[:, P.shins, 0]
+            common = swing.mean(1).pow(2).mean() + 0.5 * knee.mean(1).pow(2).mean()
+            spine = rot[:, :2, 0].pow(2).mean()
+            # (knees are left out here: they bend one way only, so their 2D shortening tells the bend)
+            diff = (swing[:, 0] - swing[:, 1]).pow(2).mean()
+            total = total + amb["turn"] * (config.w_legs * (common + spine)
+                                           + config.w_legs * amb["static"] * diff)
+        if P.z is not None:
+            total = total + config.w_shape * P.shape.prior(P.z)
+        return total
 
     params = [P.rot, P.orient, P.transl]
-    opt = torch.optim.Adam([{"params": params, "lr": config.lr}, {"params": [P.log_focal], "lr": 0.01}])
+    groups = [{"params": params, "lr": config.lr}, {"params": [P.log_focal, P.pitch], "lr": 0.01}]
+    if P.z is not None:
+        groups.append({"params": [P.z], "lr": 0.01})
+    opt = torch.optim.Adam(groups)
     # stage 1: global motion only, then everything, on keypoints
     for it in range(config.keypoint_iters):
         opt.zero_grad()
         warm = it < config.keypoint_iters // 5
-        Tr = P.transforms()
-        loss = keypoint_terms(Tr, P.focal if config.refine_focal else P.focal.detach()) + regularisers()
+        kin_rest, kp_rest = P.rest()
+        Tr = P.transforms(kin_rest)
+        loss = keypoint_terms(Tr, P.focal if config.refine_focal else P.focal.detach(), kp_rest) + regularisers()
         loss.backward()
         if warm:
             P.rot.grad = None
             P.log_focal.grad = None
+            if P.z is not None:
+                P.z.grad = None
         if not config.refine_focal:
             P.log_focal.grad = None
         opt.step()
@@ -370,18 +524,22 @@ def _fit(body: BodyModel, det: Detections, config: FitConfig, log) -> FitResult:
     if config.silhouette_iters > 0 and config.w_silhouette > 0:
         scale = config.silhouette_size / max(W, H)
         sw, sh = max(8, round(W * scale)), max(8, round(H * scale))
-        targets = [_downsample(m, sw, sh) for m in det.masks]
-        vid, spacing = _splat_subset(body, config.splat_vertices, config.seed)
-        sigma = 0.6 * spacing
+        # the splatted alpha reaches ~1 pixel beyond the mesh's edge: compare it with the mask grown by as much
+        targets = [torch.nn.functional.max_pool2d(_downsample(m, sw, sh)[None, None], 3, 1, 1)[0, 0] for m in det.masks]
+        samples = SurfaceSamples.build(body, config.splat_vertices, config.seed)
+        sw_weights = samples.weights(body)
+        sigma = 0.5 * samples.spacing
         for it in range(config.silhouette_iters):
             opt.zero_grad()
-            focal = P.focal if config.refine_focal else P.focal.detach()
-            Tr = P.transforms()
-            loss = keypoint_terms(Tr, focal) + regularisers()
+            focal = P.focal.detach()  # the silhouette must not trade the body's size for the focal length
+            kin_rest, kp_rest = P.rest()
+            Tr = P.transforms(kin_rest)
+            loss = keypoint_terms(Tr, focal, kp_rest) + regularisers()
             cam = P.camera(sw, sh)
+            rv = samples.rest(P.rest_vertices())
             sil = 0.0
             for i in range(P.T):
-                alpha = render_alpha(body, Tr[i], cam, vid, sigma)
+                alpha = render_alpha(sw_weights, rv, Tr[i], cam, sigma)
                 sil = sil + (1.0 - _soft_iou(alpha, targets[i]))
             loss = loss + config.w_silhouette * sil / P.T
             loss.backward()
@@ -389,22 +547,85 @@ def _fit(body: BodyModel, det: Detections, config: FitConfig, log) -> FitResult:
             hist["loss"].append(float(loss.detach()))
             if log is not None and (it + 1) % 20 == 0:
                 log(f"silhouette step {it + 1}/{config.silhouette_iters}: loss {float(loss.detach()):.4f}")
+    with torch.no_grad():
+        hist["level_deg"] = _level(P, weight=0.0 if amb["mode"] == "off" else 1.0)
     # reported errors: keypoints in pixels, silhouette IoU at full resolution
     with torch.no_grad():
-        Tr = P.transforms()
-        uv = P.project(P.to_camera(P.kmap.points(Tr)), P.focal).numpy()
+        kin_rest, kp_rest = P.rest()
+        Tr = P.transforms(kin_rest)
+        uv = P.project(P.to_camera(P.kmap.points(Tr, kp_rest)), P.focal).numpy()
         err = np.linalg.norm(uv - P.kp.numpy(), axis=-1)  # (T,K)
         seen = det.visibility[:, P.kmap.landmark_ids] >= config.min_visibility
         px = np.array([err[i][seen[i]].mean() if seen[i].any() else float("nan") for i in range(P.T)])
         cam = P.camera()
         faces = body.faces.numpy()
+        rest_v = P.rest_vertices()
         fit_masks, ious = [], []
         for i in range(P.T):
-            verts = apply_points(blend(body.skin_weights, Tr[i]), body.rest_vertices).numpy()
+            verts = apply_points(blend(body.skin_weights, Tr[i]), rest_v).numpy()
             a = mesh_silhouette(verts, faces, cam)
             m = det.masks[i] > 0.5
             union = (a | m).sum()
             ious.append(float((a & m).sum() / union) if union else 0.0)
             fit_masks.append(a)
+    phenotype = None if P.z is None else P.shape.phenotype(P.z)
     return FitResult(P.poses(), P.camera(), px, np.asarray(ious), np.stack(fit_masks), P.f_guess,
-                     time.perf_counter() - t_start, hist)
+                     time.perf_counter() - t_start, hist, phenotype, amb)
+
+
+def _level(P: _Problem, weight: float) -> float:
+    """Stand the body up where one view cannot tell depth: rotate the fitted world about the camera's
+    centre (about the world's X axis) so the mean line from the feet to the head is vertical, and turn the
+    camera's pitch by as much. The images are unchanged by construction (the camera sees the same thing);
+    only what is vertical changes: a camera looking down at an upright person instead of a level camera
+    and a leaning person, which a keypoint fit cannot tell apart and Adam does not settle along its flat
+    valley. Measured on the synthetic walk (true lean 0.0-0.5 degrees, camera 4 degrees down): with true
+    keypoints the fit ends with the camera 9 degrees up and the body leaning 10 degrees, so even a turning
+    clip does not pin gravity down; only the mean over the clip is levelled, a lean that changes over the
+    clip keeps its changes. ``weight`` 0 (``--upright off``) keeps the fit as it is. Returns the rotation in
+    degrees."""
+    if weight <= 0:
+        return 0.0
+    kin_rest, _ = P.rest()
+    Tr = P.transforms(kin_rest)
+    rest = P.rest_vertices()
+    z = rest[:, 2]
+    h = float(z.max() - z.min())
+    head = torch.nonzero(z > z.max() - 0.12 * h)[:, 0]
+    feet = torch.nonzero(z < z.min() + 0.08 * h)[:, 0]
+    W = P.body.skin_weights
+
+    def centre(ids):
+        return apply_points(blend(W[ids], Tr), rest[ids]).mean(-2)  # (T,3)
+
+    d = centre(head) - centre(feet)
+    alpha = weight * float(torch.atan2(d[:, 1], d[:, 2]).mean())
+    c, s_ = math.cos(alpha), math.sin(alpha)
+    Q = torch.tensor([[1.0, 0.0, 0.0], [0.0, c, -s_], [0.0, s_, c]], dtype=torch.float64)
+    R = P.rotation()
+    centre_cam = -(R.T @ P.t0)
+    # bodies: x' = Q (x - c) + c  ->  orient' = Q R_o, transl' = Q (transl - c) + c
+    Ro = axis_angle_to_matrix(P.orient)
+    from scipy.spatial.transform import Rotation
+
+    new_orient = Rotation.from_matrix((Q @ Ro).numpy()).as_rotvec()
+    P.orient.copy_(torch.as_tensor(new_orient))
+    P.transl.copy_((P.transl - centre_cam) @ Q.T + centre_cam)
+    # camera: R' = R Q^T (the pitch turns by -alpha), same centre
+    P.pitch.sub_(alpha)
+    P.t0 = -(P.rotation() @ centre_cam)
+    return math.degrees(alpha)
+
+
+def measure_fit(body: BodyModel, poses: list[BodyPose], camera: Camera, det: Detections) -> tuple[np.ndarray, np.ndarray]:
+    """(IoU (T,), fitted silhouettes (T,H,W)) of ``body`` in ``poses`` seen by ``camera`` vs. the masks."""
+    faces = body.faces.numpy()
+    ious, sils = [], []
+    with torch.no_grad():
+        for pose, mask in zip(poses, det.masks):
+            a = mesh_silhouette(body.posed_vertices(pose).numpy(), faces, camera)
+            m = mask > 0.5
+            union = (a | m).sum()
+            ious.append(float((a & m).sum() / union) if union else 0.0)
+            sils.append(a)
+    return np.asarray(ious), np.stack(sils)

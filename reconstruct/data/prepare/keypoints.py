@@ -58,6 +58,15 @@ SEGMENTS = (("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"), ("rig
             ("right_hip", "left_hip"))
 
 
+def require_bones(body: BodyModel, names) -> None:
+    """The bones ``prepare`` fits and reads keypoints from are named in the Anny skeleton; a body
+    without them (an SMPL body, say) is refused with the names it lacks."""
+    missing = sorted({n for n in names if n not in body.bone_labels})
+    if missing:
+        raise ValueError(f"prepare fits Anny bodies: body model {body.name!r} has no bones {', '.join(missing)} "
+                         f"(SMPL bodies come with the dataset loaders' fitted poses, not from prepare)")
+
+
 def _rest_vertex(body: BodyModel, rule: str) -> int:
     """Index of the rest-mesh vertex for ``rule`` among vertices driven mainly by the head bone."""
     V = body.canonical_vertices.numpy()
@@ -87,10 +96,12 @@ class KeypointMap:
     bone_ids: np.ndarray
     vertex_rest: torch.Tensor  # (K,3) rest positions (bone heads or vertices)
     vertex_weights: torch.Tensor  # (K,J) skinning weights (one-hot for bone heads)
+    vertex_ids: np.ndarray  # (K,) mesh vertex of each landmark, -1 for bone heads
 
     @classmethod
     def build(cls, body: BodyModel) -> "KeypointMap":
-        ids, weights, bones, rest, skin = [], [], [], [], []
+        require_bones(body, ["head"] + [t for kind, t, _ in LANDMARK_TARGETS.values() if kind == "bone"])
+        ids, weights, bones, rest, skin, verts = [], [], [], [], [], []
         J = body.num_joints
         for name, (kind, target, w) in LANDMARK_TARGETS.items():
             ids.append(LANDMARK_NAMES.index(name))
@@ -102,17 +113,28 @@ class KeypointMap:
                 one = torch.zeros(J, dtype=torch.float64)
                 one[b] = 1.0
                 skin.append(one)
+                verts.append(-1)
             else:
                 v = _rest_vertex(body, target)
                 bones.append(-1)
                 rest.append(body.rest_vertices[v])
                 skin.append(body.skin_weights[v])
+                verts.append(v)
         return cls(np.asarray(ids), np.asarray(weights, np.float64), np.asarray(bones),
-                   torch.stack(rest), torch.stack(skin))
+                   torch.stack(rest), torch.stack(skin), np.asarray(verts))
+
+    def rest_points(self, joints: torch.Tensor, vertices: torch.Tensor) -> torch.Tensor:
+        """(K,3) rest positions of the landmarks' points for another rest geometry of the same body
+        (``joints`` (J,3), ``vertices`` (V,3)), e.g. another phenotype."""
+        rows = []
+        for b, v in zip(self.bone_ids, self.vertex_ids):
+            rows.append(joints[int(b)] if b >= 0 else vertices[int(v)])
+        return torch.stack(rows)
 
     def index_of(self, landmark: str) -> int:
         return int(np.nonzero(self.landmark_ids == LANDMARK_NAMES.index(landmark))[0][0])
 
-    def points(self, transforms: torch.Tensor) -> torch.Tensor:
-        """(...,K,3) posed points from bone transforms (...,J,4,4) (rest -> pose)."""
-        return apply_points(blend(self.vertex_weights, transforms), self.vertex_rest)
+    def points(self, transforms: torch.Tensor, rest: torch.Tensor | None = None) -> torch.Tensor:
+        """(...,K,3) posed points from bone transforms (...,J,4,4) (rest -> pose); ``rest`` (K,3)
+        replaces the rest positions (another phenotype, see ``rest_points``)."""
+        return apply_points(blend(self.vertex_weights, transforms), self.vertex_rest if rest is None else rest)

@@ -1,13 +1,18 @@
-"""``prepare``: a raw video -> a scene folder (frames, person masks, fitted body poses, one camera).
+"""``prepare``: a video, an image or a folder of images -> a scene folder (frames, person masks, fitted
+body shape and poses, one camera).
 
-read frames -> detector (2D/3D keypoints, person mask per frame) -> drop frames without a person ->
-fit poses and camera (``fit.py``) -> write the scene folder and ``prepare_report.json`` atomically:
-everything goes to a hidden sibling folder that is renamed into place only when complete.
+read frames (``inputs.py``) -> find everyone, pick one person (``people.py``) -> one steady crop around them
+(``crop.py``) -> detector on the crop (2D/3D keypoints, GrabCut-refined person mask) -> other people out of
+the mask, small holes filled (``masks.py``) -> drop frames without a person -> fit shape, poses and camera
+(``fit.py``, ``shape.py``) -> side-view lean (``lean.py``) -> write the scene folder, ``prepare_report.json``
+and ``prepare_report.png`` atomically: everything goes to a hidden sibling folder that is renamed into
+place only when complete.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import sys
@@ -20,12 +25,24 @@ import numpy as np
 
 from ..scene import BodySpec, Frame, Scene
 from ..scene_io import write_scene
+from .crop import Crop, apply_crop, person_crop
 from .detector import Detections, PersonDetector
-from .fit import FIT_BONES, FitConfig, fit_poses
-from .keypoints import LANDMARK_TARGETS, LANDMARK_NAMES
-from .video import read_video
+from .fit import FIT_BONES, CameraGuess, FitConfig, fit_poses, measure_fit
+from .inputs import InputError, input_kind, read_input
+from .keypoints import LANDMARK_NAMES, LANDMARK_TARGETS
+from .lean import side_view
+from .masks import fill_holes as fill_mask_holes
+from .masks import remove_others
+from .people import PersonChoiceError, PersonTrack, choose_person
+from .report_image import REPORT_IMAGE, ReportFrame, pick_frames, write_report_image
+from .shape import ShapeBasis, body_height
+from .video import Video, working_size
 
 REPORT_NAME = "prepare_report.json"
+PEOPLE_SIZE = 640  # people are found on frames at most this large
+PEOPLE_ALL_FRAMES = 40  # clips up to this many frames: people are found in every frame, else in a sample
+PEOPLE_SAMPLE = 12
+CROP_MARGIN = 0.08
 DEFAULT_PHENOTYPE = {k: 0.5 for k in ("gender", "age", "muscle", "weight", "height", "proportions")}
 
 
@@ -71,67 +88,189 @@ def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+def _find_person(video: Video, names: list[str], detector: PersonDetector, person: int | None, source: str,
+                 log) -> tuple[PersonTrack | None, list[int]]:
+    """Everyone in (a sample of) the preview frames; the chosen person's track.
+    Returns (track or None when the detector cannot tell people apart, sampled positions)."""
+    T, H, W = video.frames.shape[:3]
+    sample = list(range(T)) if T <= PEOPLE_ALL_FRAMES else sorted({int(round(x)) for x in np.linspace(0, T - 1, PEOPLE_SAMPLE)})
+    found = detector.find_people(video.frames[sample])
+    if found is None:
+        if person is not None:
+            raise PersonChoiceError(f"{source}: --person {person} asked for, but the {detector.name} detector "
+                                    "cannot tell people apart")
+        return None, sample
+    track = choose_person(found, W, H, person, source)
+    if track is None:
+        what = f"in {names[0]}" if T == 1 else f"in any of its {T} frames"
+        raise NoPersonError(f"{source}: no person found {what} (expected a front view of one person, whole body "
+                            f"in view; the {detector.name} detector found none)")
+    first = next(i for i, c in enumerate(track.per_frame) if c is not None)
+    choice = "largest and most central" if track.picked_by == "auto" else "--person"
+    log(f"{names[sample[first]]}: found {track.count} {'person' if track.count == 1 else 'people'} "
+        f"(numbered left to right); preparing person {track.index} ({choice})"
+        + ("; choose another with --person N" if track.count > 1 else ""))
+    return track, sample
+
+
+def _others_in_crop(track: PersonTrack, sample: list[int], ps: float, cr: Crop, T: int) -> list[np.ndarray | None]:
+    """Per frame, the other people's pixels (not the chosen person's) in the crop, or None."""
+    small_crop = Crop(cr.x0 * ps, cr.y0 * ps, cr.width * ps, cr.height * ps, cr.out_width, cr.out_height)
+    out: list[np.ndarray | None] = [None] * T
+    for k, i in enumerate(sample):
+        if not track.others[k]:
+            continue
+        others = np.any([c.region for c in track.others[k]], axis=0)
+        if track.per_frame[k] is not None:
+            others &= ~track.per_frame[k].region
+        out[i] = apply_crop(others[None].astype(np.float32), small_crop, resample="nearest")[0] > 0.5
+    return out
+
+
 def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, detector: PersonDetector,
                   fit_config: FitConfig = FitConfig(), max_size: int | None = 512, every: int = 1,
-                  max_frames: int | None = None, phenotype: dict | None = None, log=_log) -> tuple[Path, dict]:
-    """Make a scene folder ``out`` from the video; returns (folder, report). Nothing is written unless
-    every step succeeds."""
+                  max_frames: int | None = None, phenotype: dict | None = None, person: int | None = None,
+                  crop: bool = True, fill_holes: bool = True, report_image: bool = True,
+                  log=_log) -> tuple[Path, dict]:
+    """Make a scene folder ``out`` from a video, an image or a folder of images; returns (folder, report).
+    Nothing is written unless every step succeeds."""
     t0 = time.perf_counter()
     video_path = Path(video_path)
     out = check_output_folder(out)
-    video = read_video(video_path, max_size=max_size, every=every, max_frames=max_frames)
-    T, H, W = video.frames.shape[:3]
-    log(f"{video_path}: {T} frames at {W}x{H} ({video.source_size[0]}x{video.source_size[1]} in the file), "
-        f"{video.fps:g} fps")
+    # two passes over the input: a small preview to find the person, then the frames at the file's own
+    # resolution, cropped as they are decoded (a long 4K clip is never held in memory whole)
+    preview, names = read_input(video_path, max_side=PEOPLE_SIZE, every=every, max_frames=max_frames)
+    T = preview.frames.shape[0]
+    W0, H0 = preview.source_size
+    ps = preview.frames.shape[2] / W0  # preview pixels per source pixel
+    kind = input_kind(video_path)
+    log(f"{video_path}: {T} {'frame' if T == 1 else 'frames'} of {W0}x{H0}"
+        + (f", {preview.fps:g} fps" if kind == "video" else ""))
+    track, sample = None, []
+    if crop or person is not None:
+        track, sample = _find_person(preview, names, detector, person, str(video_path), log)
+    box = None
+    if track is not None and crop:
+        ub = track.union_box()
+        box = tuple(v / ps for v in ub)
+    if box is None:
+        ww, wh = working_size(W0, H0, max_size)
+        cr = Crop(0.0, 0.0, float(W0), float(H0), ww, wh)
+    else:
+        side = max(box[2] - box[0], box[3] - box[1]) * (1 + 2 * CROP_MARGIN)
+        cr = person_crop(box, W0, H0, int(min(max_size or 10 ** 6, max(64, math.ceil(side)))), margin=CROP_MARGIN)
+    video, _ = read_input(video_path, every=every, max_frames=max_frames,
+                          transform=lambda f: apply_crop(f[None], cr)[0])
+    if len(video.frames) != T:
+        raise InputError(f"{video_path}: gave {len(video.frames)} frames on the second reading, {T} on the first")
+    frames = video.frames
+    H, W = frames.shape[1:3]
     t_read = time.perf_counter()
-    det = detector.detect(video.frames)
+    if box is not None:
+        log(f"cropped to the person: {cr.width:.0f}x{cr.height:.0f} source pixels at ({cr.x0:.0f}, {cr.y0:.0f}) "
+            f"-> {W}x{H}")
+    # other people out of the image before the detector sees it (it must find the chosen one) and out of
+    # the mask after (where they were found: every frame of a short clip, a sample of a long one)
+    others = _others_in_crop(track, sample, ps, cr, T) if track is not None else [None] * T
+    if any(o is not None for o in others):
+        # filled with the frame's median colour (not black: a black silhouette still looks like a person)
+        frames = frames.copy()
+        for i, o in enumerate(others):
+            if o is not None:
+                frames[i][o] = np.median(frames[i][~o], axis=0).astype(np.uint8)
+    det = detector.detect(frames)
     t_det = time.perf_counter()
+    masks = det.masks.copy()
+    holes = 0
+    for i in range(T):
+        masks[i] = remove_others(masks[i], others[i])
+        if fill_holes:
+            masks[i], n = fill_mask_holes(masks[i])
+            holes += n
+    det.masks = masks
     keep, dropped = person_frames(det)
     for d in dropped:
-        d["index"] = int(video.indices[d.pop("position")])
+        pos = d.pop("position")
+        d["index"] = int(video.indices[pos])
+        d["name"] = names[pos]
     if not keep.any():
-        raise NoPersonError(f"{video_path}: no person found in any of its {T} frames (expected a video of one "
-                            f"person, whole body in view; the {detector.name} detector found none)")
+        what = f"in {names[0]}" if T == 1 else f"in any of its {T} frames"
+        raise NoPersonError(f"{video_path}: no person found {what} (expected a front view of one person, whole "
+                            f"body in view; the {detector.name} detector found none)")
     if dropped:
         log(f"dropped {len(dropped)} of {T} frames without a person: "
             + ", ".join(f"{d['index']} ({d['reason']})" for d in dropped[:10]) + (" ..." if len(dropped) > 10 else ""))
     kept = det.select(keep)
-    spec = BodySpec.anny(dict(phenotype or DEFAULT_PHENOTYPE), 5.0)
-    body = spec.build()
-    log(f"fitting the body's pose to {kept.num_frames} frames ...")
-    fit = fit_poses(body, kept, fit_config, log=log)
+    base_spec = BodySpec.anny(dict(phenotype or DEFAULT_PHENOTYPE), 5.0)
+    body = base_spec.build()
+    shape = ShapeBasis.build(dict(base_spec.params), 5.0, base_body=body,
+                             stature_m=fit_config.stature_m) if fit_config.fit_shape else None
+    f0 = H0 / (2.0 * math.tan(math.radians(fit_config.fov_y_deg) / 2.0))
+    K = cr.intrinsics(np.array([[f0, 0.0, W0 / 2.0], [0.0, f0, H0 / 2.0], [0.0, 0.0, 1.0]]))
+    guess = CameraGuess(float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
+    log(f"fitting the body's {'shape and ' if shape else ''}pose to {kept.num_frames} "
+        f"{'frame' if kept.num_frames == 1 else 'frames'} ...")
+    fit = fit_poses(body, kept, fit_config, shape=shape, guess=guess, log=log)
+    spec = BodySpec.anny(fit.phenotype, 5.0) if fit.phenotype else base_spec
+    final_body = spec.build()
+    fit.iou, fit.fit_masks = measure_fit(final_body, fit.poses, fit.camera, kept)
+    shown = pick_frames(kept.num_frames)
+    lean_at = sorted(set(shown) | set(pick_frames(kept.num_frames, 8)))
+    sides = {k: side_view(final_body, fit.poses[k]) for k in lean_at}
     t_fit = time.perf_counter()
 
     indices = video.indices[keep]
-    frames = []
+    kept_names = [n for n, k in zip(names, keep) if k]
+    scene_frames = []
     for k, (i, pose) in enumerate(zip(indices, fit.poses)):
         mask = kept.masks[k].astype(np.float32)
-        image = video.frames[keep][k].astype(np.float32) / 255.0 * mask[..., None]
-        frames.append(Frame(int(i), image, mask, fit.camera, pose, None, time=float(i) / (video.fps * every)))
-    per_frame = [{"index": int(i), "keypoint_px_error": round(float(e), 3), "silhouette_iou": round(float(u), 4)}
-                 for i, e, u in zip(indices, fit.keypoint_px_error, fit.iou)]
+        image = frames[keep][k].astype(np.float32) / 255.0 * mask[..., None]
+        scene_frames.append(Frame(int(i), image, mask, fit.camera, pose, None, time=float(i) / (video.fps * every)))
+    per_frame = [{"index": int(i), "name": n, "keypoint_px_error": round(float(e), 3), "silhouette_iou": round(float(u), 4)}
+                 for i, n, e, u in zip(indices, kept_names, fit.keypoint_px_error, fit.iou)]
+    for k, sv in sides.items():
+        per_frame[k]["side_lean_deg"] = round(sv.lean_deg, 2)
+    leans = np.array([sv.lean_deg for sv in sides.values()])
     report = {
-        "video": str(video_path.resolve()),
+        "video": str(video_path.resolve()), "input_kind": kind,
         "frames_in_video": int(T), "frames_used": int(keep.sum()), "dropped_frames": dropped,
         "image_size": [W, H], "source_size": list(video.source_size), "fps": video.fps,
+        "person": None if track is None else {"picked": track.index, "people_found": track.count,
+                                              "picked_by": track.picked_by},
+        "crop": cr.to_dict(), "source_frame_size": [W0, H0],
+        "masks": {"refined_frames": None if kept.refine_used is None else int(kept.refine_used.sum()),
+                  "holes_filled": holes},
         "detector": detector.describe() | kept.info,
         "camera": {"focal_px": fit.camera.fx, "focal_guess_px": fit.focal_guess,
+                   "principal_point": [fit.camera.cx, fit.camera.cy],
                    "fov_y_deg": float(np.degrees(fit.camera.fov_y)), "fov_y_guess_deg": fit_config.fov_y_deg,
-                   "distance_m": float(np.linalg.norm(fit.camera.center))},
-        "body": spec.to_dict(), "fitted_bones": list(FIT_BONES),
+                   "distance_m": float(np.linalg.norm(fit.camera.center)),
+                   # > 0: the camera looks down at the person
+                   "pitch_deg": float(np.degrees(np.arcsin(np.clip(-(fit.camera.R.T @ [0.0, 0.0, 1.0])[2], -1, 1))))},
+        "body": spec.to_dict(), "body_height_m": body_height(final_body), "fitted_bones": list(FIT_BONES),
+        "depth_ambiguity": fit.depth_ambiguity,
         "mean_keypoint_px_error": float(np.nanmean(fit.keypoint_px_error)),
         "mean_silhouette_iou": float(np.mean(fit.iou)),
+        "side_lean_deg": {"mean": float(leans.mean()), "max_abs": float(np.abs(leans).max())},
         "per_frame": per_frame,
         "fit_config": asdict(fit_config),
         "seconds": {"read": t_read - t0, "detect": t_det - t_read, "fit": t_fit - t_det},
     }
-    scene = Scene(video_path.stem, spec, frames, [], video.fps, {
-        "source": "video", "video": str(video_path.resolve()), "detector": detector.name,
+    scene = Scene(video_path.stem, spec, scene_frames, [], video.fps, {
+        "source": kind, "video": str(video_path.resolve()), "detector": detector.name,
         "dropped_frames": [d["index"] for d in dropped], "report": REPORT_NAME})
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.prepare.", dir=out.parent))
     try:
         inner = write_scene(scene, staging / "scene")
+        if report_image:
+            title = (f"{video_path.name}: " + ("" if track is None else f"person {track.index} of {track.count}, ")
+                     + f"mean IoU {report['mean_silhouette_iou']:.3f}, height {report['body_height_m']:.2f} m, "
+                     f"side lean {report['side_lean_deg']['mean']:+.1f} deg")
+            rows = [ReportFrame(kept_names[k], frames[keep][k], kept.masks[k],
+                                None if kept.raw_masks is None else kept.raw_masks[k], fit.fit_masks[k],
+                                float(fit.iou[k]), sides[k]) for k in shown]
+            write_report_image(inner / REPORT_IMAGE, rows, title)
         report["seconds"]["total"] = time.perf_counter() - t0
         (inner / REPORT_NAME).write_text(json.dumps(report, indent=1))
         if out.exists():
@@ -146,11 +285,22 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
     return out, report
 
 
+prepare = prepare_video
+
+
 def format_report(report: dict) -> str:
     lines = [f"{'frame':>6} {'kp px err':>9} {'IoU':>6}"]
     for r in report["per_frame"]:
         lines.append(f"{r['index']:>6} {r['keypoint_px_error']:>9.2f} {r['silhouette_iou']:>6.3f}")
     cam = report["camera"]
+    if report.get("person"):
+        p = report["person"]
+        lines.append(f"person {p['picked']} of {p['people_found']} found (numbered left to right; "
+                     f"{'largest and most central' if p['picked_by'] == 'auto' else 'chosen with --person'})")
+    if "body_height_m" in report:
+        lean = report["side_lean_deg"]
+        lines.append(f"fitted body {report['body_height_m']:.2f} m tall; side-view lean {lean['mean']:+.1f} deg "
+                     f"(largest {lean['max_abs']:.1f})")
     lines.append(f"frames used {report['frames_used']} of {report['frames_in_video']}; mean keypoint error "
                  f"{report['mean_keypoint_px_error']:.2f} px, mean silhouette IoU {report['mean_silhouette_iou']:.3f} "
                  f"(fitted body vs. person mask); focal {cam['focal_px']:.1f} px (fov {cam['fov_y_deg']:.1f} deg, "

@@ -43,8 +43,10 @@ def probe_video(path: str | os.PathLike) -> tuple[int, int]:
 
 
 def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: int = 1,
-               max_frames: int | None = None) -> Video:
-    """Frames of ``path`` (every ``every``-th, at most ``max_frames``), longer side at most ``max_size``.
+               max_frames: int | None = None, transform=None) -> Video:
+    """Frames of ``path`` (every ``every``-th, at most ``max_frames``), longer side at most ``max_size``;
+    ``transform`` (frame at the file's size -> frame) replaces the resize and runs as each frame is decoded
+    (a crop: only the cropped frames are held in memory).
     Raises FileNotFoundError for a missing file and VideoError for one that is not a decodable video."""
     path = Path(path)
     if not path.exists():
@@ -64,7 +66,9 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
         for i, frame in enumerate(iio.imiter(path, plugin="pyav", format="rgb24")):
             if i % every:
                 continue
-            frames.append(frame)
+            if not frames:
+                first_size = frame.shape[:2]
+            frames.append(frame if transform is None else transform(frame))
             indices.append(i)
             if max_frames and len(frames) >= max_frames:
                 break
@@ -72,9 +76,9 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
         raise VideoError(f"{path}: cannot be read as a video ({expected}): {type(exc).__name__}: {exc}") from exc
     if not frames:
         raise VideoError(f"{path}: holds no video frames ({expected})")
-    h, w = frames[0].shape[:2]
+    h, w = first_size
     ww, wh = working_size(w, h, max_size)
-    if (ww, wh) != (w, h):
+    if transform is None and (ww, wh) != (w, h):
         frames = [_resize(f, ww, wh) for f in frames]
     if not np.isfinite(fps) or fps <= 0:
         fps = 25.0

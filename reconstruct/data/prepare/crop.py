@@ -1,0 +1,102 @@
+"""One steady crop around the person for the whole clip, resized to the working size, and the camera
+intrinsics that go with it (principal point moved by the crop's corner, focal scaled with the resize).
+
+A crop maps a source pixel position p to (p - corner) * scale. Pixel centres sit at +0.5 in both images,
+so continuous coordinates map exactly by that formula."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Crop:
+    """Source box (x0, y0) + (width, height) in source pixels (may reach outside the frame: padded black),
+    resized to out_width x out_height."""
+
+    x0: float
+    y0: float
+    width: float
+    height: float
+    out_width: int
+    out_height: int
+
+    @property
+    def scale(self) -> float:
+        return self.out_width / self.width
+
+    def to_crop(self, uv: np.ndarray) -> np.ndarray:
+        """Source pixel positions (...,2) -> crop pixel positions."""
+        return (np.asarray(uv, np.float64) - [self.x0, self.y0]) * [self.out_width / self.width,
+                                                                     self.out_height / self.height]
+
+    def intrinsics(self, K: np.ndarray) -> np.ndarray:
+        """The source camera's K (3,3) -> the crop's K."""
+        sx, sy = self.out_width / self.width, self.out_height / self.height
+        A = np.array([[sx, 0.0, -sx * self.x0], [0.0, sy, -sy * self.y0], [0.0, 0.0, 1.0]])
+        return A @ np.asarray(K, np.float64)
+
+    def to_dict(self) -> dict:
+        return {"x0": self.x0, "y0": self.y0, "width": self.width, "height": self.height,
+                "out_width": self.out_width, "out_height": self.out_height}
+
+
+def person_crop(box: tuple[float, float, float, float] | None, width: int, height: int, out_size: int,
+                *, margin: float = 0.1, min_aspect: float = 0.75) -> Crop:
+    """The crop around ``box`` (x0, y0, x1, y1): grown by ``margin`` of its height on every side, widened to
+    at least ``min_aspect`` (width / height; a square-ish frame for a standing person), its longer side
+    resized to ``out_size``. None or a box of the whole frame: the whole frame."""
+    if box is None:
+        x0, y0, x1, y1 = 0.0, 0.0, float(width), float(height)
+    else:
+        x0, y0, x1, y1 = box
+        m = margin * max(y1 - y0, x1 - x0)
+        x0, y0, x1, y1 = x0 - m, y0 - m, x1 + m, y1 + m
+    w, h = x1 - x0, y1 - y0
+    if w < min_aspect * h:
+        cx = 0.5 * (x0 + x1)
+        w = min_aspect * h
+        x0 = cx - w / 2
+    elif h < min_aspect * w:
+        cy = 0.5 * (y0 + y1)
+        h = min_aspect * w
+        y0 = cy - h / 2
+    # no padding where the frame itself is narrower (or lower) than the crop: take the frame's extent
+    if box is not None and w > width:
+        x0, w = 0.0, float(width)
+    if box is not None and h > height:
+        y0, h = 0.0, float(height)
+    # whole pixels for the corner and size keep the resampling simple; same aspect in and out
+    x0, y0 = float(np.floor(x0)), float(np.floor(y0))
+    w, h = float(np.ceil(w)), float(np.ceil(h))
+    s = out_size / max(w, h)
+    ow, oh = max(8, int(round(w * s))), max(8, int(round(h * s)))
+    return Crop(x0, y0, w, h, ow, oh)
+
+
+def apply_crop(images: np.ndarray, crop: Crop, *, resample: str = "lanczos") -> np.ndarray:
+    """Crop (N,H,W[,C]) images (uint8 or float) to ``crop`` (black outside the source) and resize."""
+    from PIL import Image
+
+    out = []
+    mode = {"lanczos": Image.Resampling.LANCZOS, "bilinear": Image.Resampling.BILINEAR,
+            "nearest": Image.Resampling.NEAREST}[resample]
+    for im in images:
+        H, W = im.shape[:2]
+        x0, y0, w, h = int(crop.x0), int(crop.y0), int(crop.width), int(crop.height)
+        canvas = np.zeros((h, w) + im.shape[2:], im.dtype)
+        sx0, sy0, sx1, sy1 = max(0, x0), max(0, y0), min(W, x0 + w), min(H, y0 + h)
+        if sx1 > sx0 and sy1 > sy0:
+            canvas[sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0] = im[sy0:sy1, sx0:sx1]
+        if canvas.dtype == np.uint8:
+            out.append(np.asarray(Image.fromarray(canvas).resize((crop.out_width, crop.out_height), mode)))
+        else:
+            chans = canvas[..., None] if canvas.ndim == 2 else canvas
+            res = [np.asarray(Image.fromarray(chans[..., c].astype(np.float32), mode="F").resize(
+                (crop.out_width, crop.out_height), Image.Resampling.BILINEAR if mode == Image.Resampling.LANCZOS else mode))
+                for c in range(chans.shape[-1])]
+            r = np.stack(res, -1)
+            out.append(r[..., 0] if canvas.ndim == 2 else r)
+    return np.stack(out)

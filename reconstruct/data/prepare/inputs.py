@@ -1,0 +1,109 @@
+"""What ``prepare`` accepts: a video, one image (jpg/png/webp/...), or a folder of images (sorted by name).
+
+``read_input`` returns a ``Video`` (frames at most ``max_side`` pixels on the longer side; the person crop
+comes later) and names every problem with the path: no such file, unreadable file, empty folder,
+images of different sizes in a folder.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .video import VIDEO_SUFFIXES, Video, VideoError, read_video, working_size
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff")
+STILL_FPS = 25.0  # frame rate given to images (scene time stamps)
+
+
+class InputError(VideoError):
+    """An input that cannot be used (names the path, what was expected and what was found)."""
+
+
+def input_kind(path: str | os.PathLike) -> str:
+    """"video", "image" or "folder"; raises FileNotFoundError / InputError."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such video, image or folder (expected a video file, an image or a folder of images)")
+    if path.is_dir():
+        return "folder"
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        return "image"
+    return "video"
+
+
+def _read_image(path: Path) -> np.ndarray:
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+            if getattr(im, "n_frames", 1) > 1 and path.suffix.lower() not in (".tif", ".tiff"):
+                im.seek(0)
+            return np.asarray(im.convert("RGB"))
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot be read as an image (expected {', '.join(IMAGE_SUFFIXES)}): "
+                         f"{type(exc).__name__}: {exc}") from exc
+
+
+def _resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    from PIL import Image
+
+    if (frame.shape[1], frame.shape[0]) == size:
+        return frame
+    return np.asarray(Image.fromarray(frame).resize(size, Image.Resampling.LANCZOS))
+
+
+def list_images(folder: Path) -> list[Path]:
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        others = sorted(p.name for p in folder.iterdir())[:5]
+        raise InputError(f"{folder}: the folder holds no images (expected files ending in "
+                         f"{', '.join(IMAGE_SUFFIXES)}; found {others if others else 'nothing'})")
+    return files
+
+
+def read_input(path: str | os.PathLike, *, max_side: int | None = 1920, every: int = 1,
+               max_frames: int | None = None, transform=None) -> tuple[Video, list[str]]:
+    """(frames, a name per frame) of a video, an image or a folder of images. ``transform`` (frame at the
+    file's size -> frame) replaces the resize to ``max_side`` and runs frame by frame (see ``read_video``)."""
+    path = Path(path)
+    kind = input_kind(path)
+    if every < 1:
+        raise ValueError(f"every must be at least 1, found {every}")
+    if kind == "video":
+        v = read_video(path, max_size=max_side, every=every, max_frames=max_frames, transform=transform)
+        return v, [f"{path.name} frame {i}" for i in v.indices]
+    files = [path] if kind == "image" else list_images(path)[::every]
+    if max_frames:
+        files = files[:max_frames]
+    images = [_read_image(f) for f in files]
+    h, w = images[0].shape[:2]
+    for f, im in zip(files, images):
+        if im.shape[:2] != (h, w):
+            raise InputError(f"{f}: is {im.shape[1]}x{im.shape[0]} pixels, the folder's first image {files[0].name} "
+                             f"is {w}x{h}; expected images of one size (frames of one camera)")
+    if transform is not None:
+        frames = np.stack([transform(im) for im in images]).astype(np.uint8)
+    else:
+        size = working_size(w, h, max_side)
+        frames = np.stack([_resize(im, size) for im in images]).astype(np.uint8)
+    return Video(frames, STILL_FPS, (w, h), np.arange(len(files)) * every), [f.name for f in files]
+
+
+__all__ = ["IMAGE_SUFFIXES", "InputError", "VIDEO_SUFFIXES", "input_kind", "list_images", "read_input"]
+
+
+def probe_input(path: str | os.PathLike) -> str:
+    """Check that ``path`` can be read (without decoding all of it); returns its kind."""
+    path = Path(path)
+    kind = input_kind(path)
+    if kind == "video":
+        read_video(path, max_size=None, max_frames=1)
+    elif kind == "image":
+        _read_image(path)
+    else:
+        _read_image(list_images(path)[0])
+    return kind

@@ -1,0 +1,80 @@
+"""``SCENE/prepare_report.png``: what ``prepare`` did, for a few frames: the input crop, the person mask
+(green: added by the refinement, red: removed by it), the fitted body over the image, and the fitted
+body seen from the side with its lean."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .lean import SideView
+
+REPORT_IMAGE = "prepare_report.png"
+
+
+@dataclass
+class ReportFrame:
+    name: str
+    image: np.ndarray  # (H,W,3) uint8, the crop before masking
+    mask: np.ndarray  # (H,W) float final mask
+    raw_mask: np.ndarray | None  # (H,W) float the segmenter's mask before refinement
+    fitted: np.ndarray  # (H,W) bool fitted body silhouette
+    iou: float
+    side: SideView
+
+
+def pick_frames(count: int, most: int = 4) -> list[int]:
+    if count <= most:
+        return list(range(count))
+    return sorted({int(round(x)) for x in np.linspace(0, count - 1, most)})
+
+
+def write_report_image(path: str | os.PathLike, frames: list[ReportFrame], title: str) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    rows = len(frames)
+    fig, axes = plt.subplots(rows, 4, figsize=(12, 3.2 * rows + 0.6), squeeze=False)
+    for r, f in enumerate(frames):
+        img = f.image.astype(np.float32) / 255.0
+        m = f.mask > 0.5
+        over = img * 0.35
+        over[m] = img[m]
+        if f.raw_mask is not None:
+            raw = f.raw_mask > 0.5
+            over[m & ~raw] = 0.5 * over[m & ~raw] + 0.5 * np.array([0.0, 1.0, 0.0])
+            over[raw & ~m] = 0.5 * img[raw & ~m] + 0.5 * np.array([1.0, 0.0, 0.0])
+        fit = img * 0.6
+        fit[f.fitted] = 0.45 * img[f.fitted] + 0.55 * np.array([0.2, 0.5, 1.0])
+        edge = m & ~_erode(m)
+        fit[edge] = [1.0, 1.0, 0.0]
+        side = np.where(f.side.silhouette[..., None], np.array([0.2, 0.5, 1.0]), np.array([1.0, 1.0, 1.0]))
+        panels = [(img, f"{f.name}"), (over, "mask (green added, red removed)"),
+                  (fit, f"fitted body, IoU {f.iou:.3f}"), (side, f"side view, lean {f.side.lean_deg:+.1f} deg")]
+        for c, (im, label) in enumerate(panels):
+            ax = axes[r, c]
+            ax.imshow(np.clip(im, 0, 1))
+            ax.set_title(label, fontsize=9)
+            ax.axis("off")
+        ax = axes[r, 3]
+        ax.plot([f.side.head[0], f.side.feet[0]], [f.side.head[1], f.side.feet[1]], "r-", lw=1.5)
+        ax.axvline(f.side.feet[0], color="0.6", lw=0.8, ls="--")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".part.png")
+    fig.savefig(tmp, dpi=80)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def _erode(m: np.ndarray) -> np.ndarray:
+    from scipy import ndimage
+
+    return ndimage.binary_erosion(m, iterations=1)
