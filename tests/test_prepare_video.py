@@ -27,7 +27,6 @@ from reconstruct.data.prepare import (Detections, DetectorError, MediapipeDetect
                                       PersonDetector, VideoError, parse_mediapipe_output, prepare_video)
 from reconstruct.data.prepare.detector import find_detector_python
 from reconstruct.data.prepare.evaluate import joint_errors, mask_iou
-from reconstruct.data.prepare.fit import FitConfig
 from reconstruct.data.prepare.keypoints import NUM_LANDMARKS, KeypointMap
 from reconstruct.data.prepare.silhouette import mesh_silhouette
 from reconstruct.data.scene_io import read_scene
