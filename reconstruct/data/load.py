@@ -24,6 +24,8 @@ from pathlib import Path
 from ..paths import cache_dir
 from .scene import Scene
 from .scene_io import SceneFormatError, read_scene, write_scene
+from .synthetic.garment_mesh import LOOSE_GARMENTS
+from .synthetic.loose_outfit import GARMENT_VERSION
 from .synthetic.generator import (
     SyntheticConfig,
     add_front_leak,
@@ -53,7 +55,8 @@ def _spec_items(spec: str) -> list[tuple[str, str]]:
 
 def parse_synthetic_spec(spec: str) -> SyntheticConfig:
     """``synthetic:seed=3,frames=40,size=256,clothing=independent`` -> SyntheticConfig (keys: the
-    config's fields, plus the short names ``frames``, ``size`` and ``azimuths``)."""
+    config's fields, plus the short names ``frames``, ``size`` and ``azimuths``; ``clothing`` is
+    ``garment``, ``independent`` or a loose garment: ``skirt``, ``coat``, ``dress``, ``wide_trousers``)."""
     fields = {f.name: f.type for f in dataclasses.fields(SyntheticConfig)}
     kwargs = {}
     for key, value in _spec_items(spec):
@@ -93,10 +96,14 @@ def recorded_scene_spec(spec: str | Path) -> str:
 def synthetic_cache_key(config: SyntheticConfig) -> str:
     """A hash of the configuration. The original (independent) clothes keep the key they had before
     the ``clothing`` field existed, so their cache folders are found again (the images are the
-    same; the front-leak information they lack is added on load)."""
+    same; the front-leak information they lack is added on load). Loose garments
+    (``clothing=skirt|coat|dress|wide_trousers``) are in the key through ``clothing`` and add the
+    garment version (loose_outfit.GARMENT_VERSION)."""
     d = dataclasses.asdict(config)
     if d["clothing"] == "independent":
         del d["clothing"]
+    elif d["clothing"] in LOOSE_GARMENTS:  # loose garments: their geometry/skinning/colour version too
+        d["garment_version"] = GARMENT_VERSION
     blob = json.dumps({"v": _GENERATOR_VERSION, **d}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

@@ -5,6 +5,12 @@ The clothing model (``SyntheticConfig.clothing``, see clothing.py) is ``garment`
 (backs inferable from fronts) or ``independent`` (the original scene: random backs; the same
 images as before for a seed). Every unseen evaluation view carries the front-leak ("tattoo")
 information of reconstruct.metrics.front_leak in ``EvalView.front_leak``.
+
+Loose clothing (``clothing=skirt|coat|dress|wide_trousers``, LOOSE_GARMENTS): the body is painted
+with the garment model and wears a garment with geometry (garment_mesh.py: a closed shell built
+round the body's hull, garment_skinning.py: weights blended across the legs, garment_paint.py: its
+colours), rendered together with the body (loose_outfit.py). The body, its motion and the cameras
+are those of the ``garment`` scene of the same seed.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from ...body.base import vertex_normals
 from ...camera import Camera, angle_between_views
 from ..scene import BodySpec, EvalView, Frame, Scene
 from .clothing import CLOTHING_MODELS, LEAK_DETAILS, PaintedClothing, paint_clothing
+from .garment_mesh import LOOSE_GARMENTS
 from .motion import walk_in_place
 
 
@@ -38,11 +45,11 @@ class SyntheticConfig:
     texture_size: int = 512
     supersample: int = 2
     leg_spread_deg: float = 5.0
-    clothing: str = "garment"  # "garment" (backs continue the fronts) or "independent" (random backs)
+    clothing: str = "garment"  # "garment" (backs continue the fronts), "independent" (random backs) or a loose garment
 
     def __post_init__(self) -> None:
-        if self.clothing not in CLOTHING_MODELS:
-            raise ValueError(f"synthetic scene: clothing must be one of {', '.join(CLOTHING_MODELS)}, "
+        if self.clothing not in CLOTHING_MODELS + LOOSE_GARMENTS:
+            raise ValueError(f"synthetic scene: clothing must be one of {', '.join(CLOTHING_MODELS + LOOSE_GARMENTS)}, "
                              f"found {self.clothing!r}")
         if self.num_frames < 1:
             raise ValueError(f"synthetic scene: num_frames must be >= 1, found {self.num_frames}")
@@ -77,8 +84,15 @@ def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progre
     rng = np.random.default_rng(config.seed)
     spec = BodySpec.anny(random_phenotype(rng), config.leg_spread_deg)
     body = spec.build()
-    painted = paint_clothing(body, rng, config.texture_size, config.clothing)
+    loose = config.clothing in LOOSE_GARMENTS
+    painted = paint_clothing(body, rng, config.texture_size, "garment" if loose else config.clothing)
     texture = painted.texture
+    outfit = None
+    if loose:
+        from .loose_outfit import dress
+
+        outfit = dress(body, config.clothing, painted, config.seed, config.texture_size)
+        texture = outfit.body_texture
     poses = walk_in_place(body.bone_labels, config.num_frames, config.fps, rng)
 
     z = body.canonical_vertices[:, 2].numpy()
@@ -87,16 +101,23 @@ def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progre
     train_cam = Camera.orbit(0.0, config.elevation_deg, config.distance, target, name="train", **cam_kw)
 
     ctx = shared_offscreen_context()
-    faces = body.faces.numpy()
-    corner_uvs = body.uv_coords.numpy()[body.face_uv_indices.numpy()]
-    mesh = MeshRenderer(ctx, faces, corner_uvs, texture, supersample=config.supersample)
+    if outfit is not None:
+        mesh = outfit.renderer(ctx, supersample=config.supersample)
+    else:
+        faces = body.faces.numpy()
+        corner_uvs = body.uv_coords.numpy()[body.face_uv_indices.numpy()]
+        mesh = MeshRenderer(ctx, faces, corner_uvs, texture, supersample=config.supersample)
     faces_t = body.faces
 
     def render(pose, camera, what):
-        verts = body.posed_vertices(pose)
         check_body_in_view(camera, body.posed_joints(pose).numpy(), what)
-        normals = vertex_normals(verts, faces_t).numpy()
-        out = mesh.render(verts.numpy(), normals, camera)
+        if outfit is not None:
+            verts, normals = outfit.posed(pose)
+        else:
+            verts = body.posed_vertices(pose)
+            normals = vertex_normals(verts, faces_t).numpy()
+            verts = verts.numpy()
+        out = mesh.render(verts, normals, camera)
         mask = quantize(out.mask)
         return quantize(out.rgb), mask, quantize_normals(out.normal, mask)
 
@@ -123,8 +144,14 @@ def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progre
         mesh.release()
     meta = {"source": "synthetic", "seed": config.seed, "config": config.__dict__, "texture": texture,
             "target": target.tolist(), "clothing": painted.description}
+    if outfit is not None:
+        meta["loose_garment"] = {**outfit.colours.description, "version": _garment_version(),
+                                 "garment_vertices": int(len(outfit.garment.vertices)),
+                                 "garment_faces": int(len(outfit.garment.faces)),
+                                 "top_m": round(outfit.garment.info["top_m"], 4),
+                                 "hem_m": round(outfit.garment.info["hem_m"], 4)}
     scene = Scene(synthetic_scene_name(config), spec, frames, views, config.fps, meta)
-    add_front_leak(scene, painted, config)
+    add_front_leak(scene, painted, config, outfit)
     return scene
 
 
@@ -135,11 +162,35 @@ def synthetic_scene_name(config: SyntheticConfig) -> str:
     return f"synthetic-seed{config.seed}" + ("" if config.clothing == "independent" else f"-{config.clothing}")
 
 
+def _garment_version() -> int:
+    from .loose_outfit import GARMENT_VERSION
+
+    return GARMENT_VERSION
+
+
 def repaint(config: SyntheticConfig) -> PaintedClothing:
-    """The clothing of ``config``'s scene, painted again (no rendering): the same draws as the build."""
+    """The clothing of ``config``'s scene, painted again (no rendering): the same draws as the build.
+    For a loose garment: the painting of the body under it (clothing.py's garment model; the leak
+    regions are those of the body, the garment hides them when rendered)."""
     rng = np.random.default_rng(config.seed)
     spec = BodySpec.anny(random_phenotype(rng), config.leg_spread_deg)
-    return paint_clothing(spec.build(), rng, config.texture_size, config.clothing)
+    model = "garment" if config.clothing in LOOSE_GARMENTS else config.clothing
+    return paint_clothing(spec.build(), rng, config.texture_size, model)
+
+
+def loose_outfit_of(scene: Scene):
+    """The LooseOutfit of a synthetic loose-clothing scene (rebuilt from its configuration), or None."""
+    cfg = scene.meta.get("config") or {}
+    if scene.meta.get("source") != "synthetic" or cfg.get("clothing") not in LOOSE_GARMENTS:
+        return None
+    from .loose_outfit import dress
+
+    config = SyntheticConfig(**cfg)
+    rng = np.random.default_rng(config.seed)
+    spec = BodySpec.anny(random_phenotype(rng), config.leg_spread_deg)
+    body = spec.build()
+    painted = paint_clothing(body, rng, config.texture_size, "garment")
+    return dress(body, config.clothing, painted, config.seed, config.texture_size)
 
 
 def _mesh_renderer(body, texture: np.ndarray, supersample: int, ambient: float = 0.85):
@@ -152,32 +203,46 @@ def _mesh_renderer(body, texture: np.ndarray, supersample: int, ambient: float =
 
 
 def render_scene_views(scene: Scene, texture: np.ndarray, views, *, supersample: int = 2,
-                       ambient: float = 0.85) -> list[np.ndarray]:
+                       ambient: float = 0.85, outfit=None) -> list[np.ndarray]:
     """The scene's body in the pose and camera of each of ``views`` (evaluation views or frames),
     rendered with another albedo atlas (as the ground truth is with ``scene.meta['texture']``):
-    (H,W,3) float32 RGB over black, 8-bit rounded."""
-    body = scene.body_model()
-    mesh = _mesh_renderer(body, texture, supersample, ambient)
+    (H,W,3) float32 RGB over black, 8-bit rounded. In a loose-clothing scene the garment is drawn
+    too, in black: it hides what it covers (``outfit``: the scene's LooseOutfit when the caller
+    has it; else rebuilt from the scene's configuration)."""
+    outfit = outfit if outfit is not None else loose_outfit_of(scene)
+    if outfit is not None:
+        from renderer.gl_context import shared_offscreen_context
+
+        mesh = outfit.renderer(shared_offscreen_context(), supersample=supersample, ambient=ambient,
+                               body_texture=texture, garment_texture=np.zeros_like(outfit.garment_texture))
+    else:
+        body = scene.body_model()
+        mesh = _mesh_renderer(body, texture, supersample, ambient)
     try:
         out = []
         for v in views:
             pose = scene.frames[getattr(v, "frame_index", getattr(v, "index", 0))].pose
-            verts = body.posed_vertices(pose)
-            normals = vertex_normals(verts, body.faces).numpy()
-            out.append(quantize(mesh.render(verts.numpy(), normals, v.camera).rgb))
+            if outfit is not None:
+                verts, normals = outfit.posed(pose)
+            else:
+                verts = body.posed_vertices(pose)
+                normals = vertex_normals(verts, body.faces).numpy()
+                verts = verts.numpy()
+            out.append(quantize(mesh.render(verts, normals, v.camera).rgb))
         return out
     finally:
         mesh.release()
 
 
-def add_front_leak(scene: Scene, painted: PaintedClothing, config: SyntheticConfig) -> None:
+def add_front_leak(scene: Scene, painted: PaintedClothing, config: SyntheticConfig, outfit=None) -> None:
     """Give every unseen evaluation view of ``scene`` its front-leak information: the image regions
     where the front-only details would land on the back (the leak atlas rendered unlit in the view's
     pose and camera, 8-bit rounded as a scene file stores it) and the details' colours."""
     from ...metrics.front_leak import FrontLeakInfo
 
     unseen = [v for v in scene.eval_views if not v.seen]
-    regions = render_scene_views(scene, painted.leak_atlas, unseen, supersample=config.supersample, ambient=1.0)
+    regions = render_scene_views(scene, painted.leak_atlas, unseen, supersample=config.supersample, ambient=1.0,
+                                 outfit=outfit)
     K = len(LEAK_DETAILS)
     for v, r in zip(unseen, regions):
         v.front_leak = FrontLeakInfo(LEAK_DETAILS, r[..., :K], tuple(painted.leak_colors[k] for k in LEAK_DETAILS))
