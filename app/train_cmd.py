@@ -121,22 +121,31 @@ def train_stage2(run_dir: Path, stage2_overrides: dict | None = None, *, allow_i
     return trainer
 
 
-def evaluate(run_dir: Path, *, as_json: bool) -> int:
+def evaluate(run_dir: Path, *, as_json: bool, scale: int = 1) -> int:
+    """Seen / unseen metrics of a run on its scene's held-out views, rendered at ``scale`` x the
+    scene's resolution (coverage: hole fraction and alpha IoU at that scale)."""
+    import torch
+
+    from reconstruct.train.evaluate import evaluate_views
     from reconstruct.train.report import plot_error_vs_time
 
     run = RunFolder(run_dir)
     info = run.check("evaluate")
     trainer = run.resume()
-    rows, summary = trainer.evaluate()
-    result = {"run": str(run_dir), "scene": info["scene"], "step": trainer.step_count, **summary, "views": rows}
+    with torch.no_grad():
+        rows, summary = evaluate_views(trainer.state, trainer.scene, trainer.background, lpips=trainer.lpips,
+                                       scale=scale)
+    result = {"run": str(run_dir), "scene": info["scene"], "step": trainer.step_count, "scale": scale, **summary,
+              "views": rows}
     if trainer.lpips_note:
         result["note"] = trainer.lpips_note
     if as_json:
         print(json.dumps(result, indent=1))
     else:
         for r in rows:
+            holes = "" if r.get("hole_fraction") is None else f"  holes {100 * r['hole_fraction']:5.2f}%"
             print(f"{r['view']:<14} frame {r['frame']:>3} {'seen' if r['seen'] else 'unseen':<7} "
-                  f"PSNR {r['psnr']:6.2f}  SSIM {r['ssim']:.4f}")
+                  f"PSNR {r['psnr']:6.2f}  SSIM {r['ssim']:.4f}  alpha IoU {r['alpha_iou']:.4f}{holes}")
         print(" ".join(f"{k}={v:.4f}" for k, v in summary.items() if v is not None))
     try:
         print(f"wrote {plot_error_vs_time(run_dir)}", file=sys.stderr)

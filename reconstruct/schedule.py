@@ -12,7 +12,9 @@ chose (a stage's fraction done, its steps, or schedule epochs):
 * ``Scheduled.drops(value, at=(x1, x2, ...), factor=γ)`` -- ``value · γ^k`` after the k-th of the
   points ``at`` (the learning-rate decay);
 * ``Scheduled.halving(value, t0, k)`` -- ``value / 2^floor((x - t0) / k)`` from ``t0`` on
-  (Eq. 14's λ_SDS).
+  (Eq. 14's λ_SDS);
+* ``Scheduled.exponential(value, x0, x1, factor)`` -- ``value`` until ``x0``, then a smooth
+  geometric decay to ``value · factor`` at ``x1`` (Stage I's learning rate over its budget).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-SHAPES = ("ramp", "drops", "halving")
+SHAPES = ("ramp", "drops", "halving", "exponential")
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,11 @@ class Scheduled:
             raise ValueError(f"a scheduled value's shape is one of {', '.join(SHAPES)}, found {self.shape!r}")
         if self.shape == "ramp" and len(self.points) != 2:
             raise ValueError(f"a ramp needs [start_step, end_step], found {self.points!r}")
+        if self.shape == "exponential":
+            if len(self.points) != 2 or not self.points[0] < self.points[1]:
+                raise ValueError(f"an exponential decay needs x0 < x1, found {self.points!r}")
+            if self.factor <= 0:
+                raise ValueError(f"an exponential decay's factor must be positive, found {self.factor}")
         if self.shape == "halving":
             if len(self.points) != 2:
                 raise ValueError(f"a halving schedule needs (t0, k), found {self.points!r}")
@@ -55,6 +62,10 @@ class Scheduled:
     @classmethod
     def drops(cls, value: float, at: tuple[float, ...] = (), factor: float = 0.1) -> "Scheduled":
         return cls("drops", float(value), tuple(sorted(float(a) for a in at)), float(factor))
+
+    @classmethod
+    def exponential(cls, value: float, x0: float, x1: float, factor: float) -> "Scheduled":
+        return cls("exponential", float(value), (float(x0), float(x1)), float(factor))
 
     @classmethod
     def halving(cls, value: float, t0: float, k: float) -> "Scheduled":
@@ -86,6 +97,10 @@ class Scheduled:
             return self.value0 + t * (v1 - self.value0)
         if self.shape == "drops":
             return self.value0 * self.factor ** sum(x >= a for a in self.points)
+        if self.shape == "exponential":
+            x0, x1 = self.points
+            t = min(1.0, max(0.0, (x - x0) / (x1 - x0)))
+            return self.value0 * self.factor ** t
         t0, k = self.points  # halving
         if x < t0:
             return self.value0

@@ -19,7 +19,7 @@ def test_ramp_like_threestudio():
 def test_learning_rate_drops():
     s = Scheduled.drops(1.0, at=(1 / 3, 2 / 3), factor=0.1)
     assert s(0.0) == 1.0 and s(0.5) == pytest.approx(0.1) and s(0.9) == pytest.approx(0.01)
-    assert Stage1Config().lr_schedule()(0.5) == pytest.approx(0.1)
+    assert Stage1Config.paper().lr_schedule()(0.5) == pytest.approx(0.1)
     assert Stage2Config().lr_schedule()(0.5) == 1.0 and Stage2Config().lr_schedule()(0.7) == pytest.approx(0.1)
 
 
@@ -32,3 +32,17 @@ def test_sds_weight_halving_eq14():
         Scheduled.halving(0.3, 0, 0)
     with pytest.raises(ValueError, match="shape"):
         Scheduled("cosine", 1.0)
+
+
+def test_exponential_decay_over_the_budget():
+    e = Scheduled.exponential(2.0, 0.5, 1.0, 0.1)
+    assert e(0.0) == 2.0 and e(0.5) == 2.0 and e(1.0) == pytest.approx(0.2) and e(2.0) == pytest.approx(0.2)
+    assert e(0.75) == pytest.approx(2.0 * 0.1 ** 0.5)
+    with pytest.raises(ValueError, match="x0 < x1"):
+        Scheduled.exponential(1.0, 0.5, 0.5, 0.1)
+    # Stage I: full rate for the first half of whatever budget ends first, then geometric to 1/10
+    c = Stage1Config(iters=10**7, minutes=3.0)
+    assert c.progress(100, 90.0) == pytest.approx(0.5)  # a minutes-only budget: time decides
+    assert c.lr_schedule()(c.progress(100, 60.0)) == 1.0
+    assert c.lr_schedule()(c.progress(400, 135.0)) == pytest.approx(0.1 ** 0.5)
+    assert Stage1Config(iters=1000).lr_schedule()(Stage1Config(iters=1000).progress(1000, 1.0)) == pytest.approx(0.1)

@@ -1,33 +1,73 @@
-"""Avatar model configuration (paper Sec. 3.1, Appendix A.1; GaussianAvatar's channel counts)."""
+"""Avatar model configuration (paper Sec. 3.1, Appendix A.1; GaussianAvatar's channel counts).
+
+The defaults depart from the paper's Gaussian shape and layout (see docs/design_notes.md, "Stage I
+fidelity"): flat discs in the body's tangent frame with a scale floor from the local texel step,
+one Gaussian per texel of a 256 x 256 map, decoded at 128 x 128 and interpolated, plus a
+per-Gaussian colour residual. ``AvatarConfig.paper()`` gives the paper's layout (the previous
+defaults): isotropic spheres, identity rotation, one decoded Gaussian per texel of a 128 x 128 map.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+SPLATS = ("disc", "sphere")
 
 
 @dataclass
 class AvatarConfig:
     feature_channels: int = 64  # channels of the canonical feature map S (GaussianAvatar c_geom)
     feature_resolution: int = 128  # S is 128 x 128 (paper)
-    gaussian_resolution: int = 128  # one Gaussian per valid texel of this positional map (paper: 512; CPU default 128)
+    gaussian_resolution: int = 256  # one Gaussian per valid texel of this positional map (paper: 512)
+    # the decoder runs on the texel grid of this resolution (None, or not coarser than the
+    # Gaussians' map: their own) and its outputs are interpolated bilinearly in UV to the Gaussians
+    decode_resolution: int | None = 128
     hidden: int = 128  # decoder width (GaussianAvatar hsize)
     trunk_layers: int = 8  # paper: 8-layer MLP, skip from the input into the 4th layer
     skip_layer: int = 4
     head_layers: int = 2  # each head is a 2-layer MLP
     offset_scale: float = 0.02  # metres per unit of the Δx head (GaussianAvatar)
-    scale_range: float = 3.0  # a Gaussian's std is at most this multiple of its own texel spacing
-    init_scale_factor: float = 0.6  # initial std as a fraction of its texel spacing
+    # Gaussian shape. "disc": flat, in the tangent plane of the (decoded) normal, axes along the UV
+    # map's u and v steps, rotated with the body by LBS; "sphere": isotropic, identity rotation (paper)
+    splat: str = "disc"
+    scale_range: float = 3.0  # a Gaussian's std is at most this multiple of its own texel step
+    scale_floor: float = 0.6  # ... and at least this multiple (0: none, the paper): neighbours overlap
+    init_scale_factor: float = 0.8  # initial std as a multiple of its texel step
+    disc_thickness: float = 0.25  # a disc's std along its normal as a fraction of its smaller in-plane std
+    color_residual: bool = True  # a learned per-Gaussian colour offset (logit) on top of the decoded colour
+    # the residual is this gain x its parameter: Adam moves a parameter by about its learning rate
+    # per step, so the gain is the residual's learning rate relative to the decoder's
+    color_residual_gain: float = 10.0
     feature_init_std: float = 0.01
     pose_feature_channels: int = 64  # P channels in Stage II (same as S so [S,P] has the Stage I width)
+
+    @classmethod
+    def paper(cls, **kw) -> "AvatarConfig":
+        """The paper's Gaussians and the earlier defaults: isotropic, identity rotation, no scale
+        floor, one decoded Gaussian per texel of a 128 x 128 map, no colour residual."""
+        base = dict(gaussian_resolution=128, decode_resolution=None, splat="sphere", scale_floor=0.0,
+                    init_scale_factor=0.6, color_residual=False)
+        return cls(**{**base, **kw})
+
+    @property
+    def decoded_resolution(self) -> int:
+        """The decode grid's resolution: ``decode_resolution``, never finer than the Gaussians' map."""
+        return int(min(self.decode_resolution or self.gaussian_resolution, self.gaussian_resolution))
 
     def __post_init__(self) -> None:
         for name in ("feature_channels", "feature_resolution", "gaussian_resolution", "hidden", "trunk_layers"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"AvatarConfig.{name} must be positive, found {getattr(self, name)}")
+        if self.decode_resolution is not None and self.decode_resolution < 8:
+            raise ValueError(f"AvatarConfig.decode_resolution must be at least 8 or None, found {self.decode_resolution}")
         if not 1 <= self.skip_layer < self.trunk_layers:
             raise ValueError(f"AvatarConfig.skip_layer must be in [1, {self.trunk_layers}), found {self.skip_layer}")
-        if not 0 < self.init_scale_factor < self.scale_range:
-            raise ValueError(f"AvatarConfig: need 0 < init_scale_factor < scale_range, found "
-                             f"{self.init_scale_factor} and {self.scale_range}")
+        if self.splat not in SPLATS:
+            raise ValueError(f"AvatarConfig.splat must be one of {', '.join(SPLATS)}, found {self.splat!r}")
+        if not 0 <= self.scale_floor < self.init_scale_factor < self.scale_range:
+            raise ValueError(f"AvatarConfig: need 0 <= scale_floor < init_scale_factor < scale_range, found "
+                             f"{self.scale_floor}, {self.init_scale_factor} and {self.scale_range}")
+        if not 0 < self.disc_thickness <= 1:
+            raise ValueError(f"AvatarConfig.disc_thickness must be in (0, 1], found {self.disc_thickness}")
         if self.pose_feature_channels != self.feature_channels:
             raise ValueError("AvatarConfig.pose_feature_channels must equal feature_channels: P replaces the second S")

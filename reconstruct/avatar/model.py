@@ -1,12 +1,27 @@
 """The animatable Gaussian avatar: canonical feature map S, decoder G, LBS to observation space.
 
-One Gaussian sits on each valid texel of the canonical positional UV map (paper A.1.1). Its
-decoder input is [S(uv), S(uv), uv] in Stage I and [S(uv), P(uv), uv] in Stage II (Eq. 1, 12):
-the feature maps are sampled bilinearly at the texel's UV. Outputs: x_c = x + Δx, n_c = n + Δn
-(renormalised), colour, isotropic scale; opacity 1 and rotation identity (fixed, as the paper).
-Scales are relative to each Gaussian's own texel spacing, which varies by a factor of three over
-the body (the atlas gives the head more texels per area than the shins): a global scale leaves
-holes in sparse parts that rays pass through.
+One Gaussian sits on each valid texel of the canonical positional UV map (paper A.1.1). The
+decoder's input is [S(uv), S(uv), uv] in Stage I and [S(uv), P(uv), uv] in Stage II (Eq. 1, 12),
+the feature maps sampled bilinearly at the UV of a decode node. Outputs: x_c = x + Δx,
+n_c = n + Δn (renormalised), colour, scale.
+
+Decode nodes. With ``decode_resolution`` equal to the Gaussians' map (the paper), each Gaussian is
+its own node. With a coarser one, the nodes are the cells of the coarse grid around the Gaussians'
+texels, and each Gaussian takes the bilinear blend of its four nodes' raw outputs (Δx, Δn, colour
+logit, scale logit) at its own texel centre, applied to its own surface point and normal: the
+decoder runs 4x fewer times than there are Gaussians. A per-Gaussian colour residual (a logit
+offset, ``color_residual``) carries detail finer than the decode grid. ``canonical(index=...)``
+decodes only the nodes that the chosen Gaussians need (a training step skips the Gaussians that
+face away from its camera).
+
+Shape. ``splat="sphere"`` is the paper's: isotropic, identity rotation, opacity 1. ``"disc"``:
+a flat Gaussian in the tangent plane of the decoded normal, its in-plane axes along the UV map's
+u and v steps with standard deviations ``m * (step_u, step_v)`` and ``disc_thickness`` times the
+smaller along the normal; ``m`` in [scale_floor, scale_range] from the scale head, so that with the
+floor neighbours always overlap. Posed, the frame follows the LBS matrix: the normal by its
+cofactor, the u axis by the matrix itself, re-orthogonalised. Scales are relative to each
+Gaussian's own texel step, which varies by a factor of three over the body (the atlas gives the
+head more texels per area than the shins).
 """
 
 from __future__ import annotations
@@ -20,8 +35,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..body.base import BodyModel
-from ..body.lbs import apply_normals, apply_points, blend
-from ..body.uv_map import UVMap, build_uv_map, texel_spacing
+from ..body.lbs import apply_normals, apply_points, blend, safe_normalize
+from ..body.uv_map import UVMap, build_uv_map, texel_frames, texel_spacing
 from .config import AvatarConfig
 from .decoder import GaussianDecoder
 from .pose_encoder import PoseEncoder
@@ -32,9 +47,11 @@ class CanonicalGaussians:
     means: torch.Tensor  # (N,3) x_c
     normals: torch.Tensor  # (N,3) n_c, unit
     colors: torch.Tensor  # (N,3) in [0,1]
-    scales: torch.Tensor  # (N,3) standard deviations (isotropic)
+    scales: torch.Tensor  # (N,3) standard deviations along the Gaussian's own axes
     offsets_raw: torch.Tensor  # (N,3) Δx in head units (Δx = offset_scale * raw): the regulariser's input
     features: torch.Tensor  # the feature map S that produced them (for its regulariser)
+    tangents: torch.Tensor | None = None  # (N,3) unit first axis of a disc (None: sphere, identity rotation)
+    index: torch.Tensor | None = None  # which of the model's Gaussians these are (None: all, in order)
 
 
 @dataclass
@@ -47,6 +64,51 @@ class PosedGaussians:
     opacities: torch.Tensor
 
 
+def frame_quaternions(tangents: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+    """Unit (w, x, y, z) quaternions of the rotations whose columns are (t, n x t, n) for unit
+    normals ``n`` and tangents ``t`` (made perpendicular to ``n`` here).
+
+    For a rotation matrix m, the four vectors (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01),
+    (m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20), (m02 - m20, m01 + m10, 1 - m00 + m11 - m22,
+    m12 + m21), (m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22) are 4 q_k q for k = w, x, y, z;
+    the one with the largest k-th entry (4 q_k^2 >= 1) is normalised: no square root, no division
+    by a small number, smooth within each branch."""
+    t = safe_normalize(tangents - (tangents * normals).sum(-1, keepdim=True) * normals)
+    b = torch.linalg.cross(normals, t, dim=-1)
+    m = torch.stack([t, b, normals], dim=-1)  # columns
+    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
+    a = m[..., 2, 1] - m[..., 1, 2]
+    c = m[..., 0, 2] - m[..., 2, 0]
+    d = m[..., 1, 0] - m[..., 0, 1]
+    e = m[..., 0, 1] + m[..., 1, 0]
+    f = m[..., 0, 2] + m[..., 2, 0]
+    g = m[..., 1, 2] + m[..., 2, 1]
+    diag = torch.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
+    cand = torch.stack([torch.stack([diag[..., 0], a, c, d], -1), torch.stack([a, diag[..., 1], e, f], -1),
+                        torch.stack([c, e, diag[..., 2], g], -1), torch.stack([d, f, g, diag[..., 3]], -1)], -2)
+    k = diag.detach().argmax(-1)
+    q = torch.gather(cand, -2, k[..., None, None].expand(*k.shape, 1, 4))[..., 0, :]
+    return q / q.norm(dim=-1, keepdim=True)
+
+
+def _bilinear_nodes(texel_rc: np.ndarray, fine: int, coarse: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For texels of a ``fine`` map, their four surrounding cells of a ``coarse`` grid over the same
+    UV square and bilinear weights at the texel centre: (nodes (M,2) row, col of the cells used;
+    (N,4) indices into them; (N,4) weights summing to 1)."""
+    pos = (texel_rc.astype(np.float64) + 0.5) * coarse / fine - 0.5  # (row, col) in coarse cell units
+    base = np.floor(pos).astype(np.int64)
+    frac = pos - base
+    rows, cols, ws = [], [], []
+    for dr in (0, 1):
+        for dc in (0, 1):
+            rows.append(np.clip(base[:, 0] + dr, 0, coarse - 1))
+            cols.append(np.clip(base[:, 1] + dc, 0, coarse - 1))
+            ws.append((frac[:, 0] if dr else 1 - frac[:, 0]) * (frac[:, 1] if dc else 1 - frac[:, 1]))
+    flat = np.stack(rows, 1) * coarse + np.stack(cols, 1)
+    ids, inverse = np.unique(flat, return_inverse=True)
+    return np.stack([ids // coarse, ids % coarse], 1), inverse.reshape(flat.shape), np.stack(ws, 1)
+
+
 class AvatarModel(nn.Module):
     def __init__(self, body: BodyModel, config: AvatarConfig | None = None, uv_map: UVMap | None = None) -> None:
         super().__init__()
@@ -57,9 +119,18 @@ class AvatarModel(nn.Module):
         self.uv_map = uv
         self.body_name = body.name
         R = uv.resolution
+        grid_of = lambda rc, res: torch.stack([(rc[:, 1] + 0.5) / res * 2 - 1, (rc[:, 0] + 0.5) / res * 2 - 1], dim=1)
         rc = torch.as_tensor(uv.texel_rc, dtype=torch.float32)
-        grid = torch.stack([(rc[:, 1] + 0.5) / R * 2 - 1, (rc[:, 0] + 0.5) / R * 2 - 1], dim=1)
-        self.register_buffer("uv_grid", grid)  # (N,2) grid_sample coordinates (x = column, y = row)
+        self.register_buffer("uv_grid", grid_of(rc, R))  # (N,2) grid_sample coordinates (x = column, y = row)
+        Rd = config.decoded_resolution
+        self.interpolated = Rd != R
+        if self.interpolated:
+            nodes, idx, w = _bilinear_nodes(uv.texel_rc, R, Rd)
+            self.register_buffer("node_grid", grid_of(torch.as_tensor(nodes, dtype=torch.float32), Rd), persistent=False)
+            self.register_buffer("node_index", torch.as_tensor(idx), persistent=False)
+            self.register_buffer("node_weights", torch.as_tensor(w, dtype=torch.float32), persistent=False)
+        else:
+            self.register_buffer("node_grid", self.uv_grid.clone(), persistent=False)
         self.register_buffer("base_positions", uv.positions.float())
         self.register_buffer("base_normals", uv.normals.float())
         self.register_buffer("skin_weights", uv.weights.float())
@@ -67,10 +138,17 @@ class AvatarModel(nn.Module):
         self.register_buffer("canonical_inverse", canonical_inverse.float())
         spacing = texel_spacing(uv).float()
         self.register_buffer("texel_spacing", spacing)
+        if config.splat == "disc":
+            tangent, steps = texel_frames(uv)
+            self.register_buffer("base_tangents", tangent.float(), persistent=False)
+            self.register_buffer("texel_steps", steps.float(), persistent=False)  # (N,2) 3D length of one texel step along u, v
         C, Rf = config.feature_channels, config.feature_resolution
         self.features = nn.Parameter(torch.randn(1, C, Rf, Rf) * config.feature_init_std)
         self.decoder = GaussianDecoder(2 * C + 2, config.hidden, config.trunk_layers, config.skip_layer, config.head_layers)
-        init = config.init_scale_factor / config.scale_range
+        if config.color_residual:
+            # per Gaussian, trained with the decoder (it lives in the decoder's parameter group)
+            self.decoder.color_residual = nn.Parameter(torch.zeros(self.num_gaussians, 3))
+        init = (config.init_scale_factor - config.scale_floor) / (config.scale_range - config.scale_floor)
         with torch.no_grad():
             self.decoder.heads["scale"][-1].bias.fill_(math.log(init / (1 - init)))
         self.pose_encoder: nn.Module | None = None
@@ -79,16 +157,24 @@ class AvatarModel(nn.Module):
     def num_gaussians(self) -> int:
         return int(self.base_positions.shape[0])
 
-    def sample(self, feature_map: torch.Tensor) -> torch.Tensor:
-        """(1,C,H,W) map sampled bilinearly at every Gaussian's texel -> (N,C)."""
-        out = F.grid_sample(feature_map, self.uv_grid[None, None], mode="bilinear", align_corners=False)
+    @property
+    def num_nodes(self) -> int:
+        """How many decoder evaluations decode every Gaussian."""
+        return int(self.node_grid.shape[0])
+
+    def sample(self, feature_map: torch.Tensor, grid: torch.Tensor | None = None) -> torch.Tensor:
+        """(1,C,H,W) map sampled bilinearly at every Gaussian's texel (or at ``grid``) -> (N,C)."""
+        grid = self.uv_grid if grid is None else grid
+        out = F.grid_sample(feature_map, grid[None, None], mode="bilinear", align_corners=False)
         return out[0, :, 0].T
 
-    def decoder_input(self, pose_features: torch.Tensor | None = None) -> torch.Tensor:
-        """[S, S, uv] (Stage I) or [S, P, uv] with P = S + ``pose_features`` (Stage II, Eq. 12)."""
-        s = self.sample(self.features)
-        second = s if pose_features is None else self.sample(self.features + pose_features)
-        return torch.cat([s, second, self.uv_grid], dim=1)
+    def decoder_input(self, pose_features: torch.Tensor | None = None, grid: torch.Tensor | None = None) -> torch.Tensor:
+        """[S, S, uv] (Stage I) or [S, P, uv] with P = S + ``pose_features`` (Stage II, Eq. 12) at
+        the decode nodes (or at ``grid``)."""
+        grid = self.node_grid if grid is None else grid
+        s = self.sample(self.features, grid)
+        second = s if pose_features is None else self.sample(self.features + pose_features, grid)
+        return torch.cat([s, second, grid], dim=1)
 
     # ----- pose feature injection (Stage II) ------------------------------------------------
     def enable_pose_injection(self, width: int = 16) -> PoseEncoder:
@@ -110,36 +196,94 @@ class AvatarModel(nn.Module):
             return None
         return self.pose_encoder(self.pose_map(articulation)[None])
 
-    def canonical(self, pose_features: torch.Tensor | None = None) -> CanonicalGaussians:
-        out = self.decoder(self.decoder_input(pose_features))
-        cfg = self.config
-        means = self.base_positions + cfg.offset_scale * out["offset"]
-        normals = F.normalize(self.base_normals + out["normal_offset"], dim=1, eps=1e-8)
-        colors = torch.sigmoid(out["color"])
-        scales = (cfg.scale_range * self.texel_spacing[:, None] * torch.sigmoid(out["scale"])).expand(-1, 3)
-        return CanonicalGaussians(means, normals, colors, scales, out["offset"], self.features)
+    # ----- decoding -------------------------------------------------------------------------
+    def decode_raw(self, pose_features: torch.Tensor | None = None,
+                   index: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The decoder's raw outputs per Gaussian (all, or those of ``index``): evaluated at the
+        decode nodes those Gaussians need, interpolated to them when the nodes are coarser."""
+        if not self.interpolated:
+            grid = None if index is None else self.node_grid[index]
+            return self.decoder(self.decoder_input(pose_features, grid))
+        node_index = self.node_index if index is None else self.node_index[index]
+        weights = self.node_weights if index is None else self.node_weights[index]
+        if index is None:
+            grid = None
+        else:
+            needed, node_index = torch.unique(node_index, return_inverse=True)
+            grid = self.node_grid[needed]
+        out = self.decoder(self.decoder_input(pose_features, grid))
+        return {k: (v[node_index] * weights[..., None]).sum(1) for k, v in out.items()}
 
-    def lbs_matrices(self, pose_transforms: torch.Tensor) -> torch.Tensor:
-        """Per-Gaussian canonical -> observation matrices (N,4,4) for bone transforms (J,4,4)."""
-        return blend(self.skin_weights, pose_transforms.to(self.skin_weights)) @ self.canonical_inverse
+    def canonical(self, pose_features: torch.Tensor | None = None,
+                  index: torch.Tensor | None = None) -> CanonicalGaussians:
+        """The canonical Gaussians (all, or those of ``index``: then only their decode nodes run)."""
+        out = self.decode_raw(pose_features, index)
+        cfg = self.config
+        pick = (lambda t: t) if index is None else (lambda t: t[index])
+        means = pick(self.base_positions) + cfg.offset_scale * out["offset"]
+        normals = F.normalize(pick(self.base_normals) + out["normal_offset"], dim=1, eps=1e-8)
+        logit = out["color"]
+        if cfg.color_residual:
+            logit = logit + cfg.color_residual_gain * pick(self.decoder.color_residual)
+        colors = torch.sigmoid(logit)
+        rel = torch.sigmoid(out["scale"])
+        if cfg.splat == "sphere":
+            scales = ((cfg.scale_floor + (cfg.scale_range - cfg.scale_floor) * rel)
+                      * pick(self.texel_spacing)[:, None]).expand(-1, 3)
+            tangents = None
+        else:
+            m = cfg.scale_floor + (cfg.scale_range - cfg.scale_floor) * rel  # (n,1)
+            steps = pick(self.texel_steps)
+            scales = m * torch.cat([steps, cfg.disc_thickness * steps.min(1, keepdim=True).values], 1)
+            tangents = pick(self.base_tangents)
+        return CanonicalGaussians(means, normals, colors, scales, out["offset"], self.features, tangents, index)
+
+    # ----- posing ---------------------------------------------------------------------------
+    def lbs_matrices(self, pose_transforms: torch.Tensor, index: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-Gaussian canonical -> observation matrices (N,4,4) for bone transforms (J,4,4) (of
+        the Gaussians ``index`` when given)."""
+        w = self.skin_weights if index is None else self.skin_weights[index]
+        inv = self.canonical_inverse if index is None else self.canonical_inverse[index]
+        return blend(w, pose_transforms.to(w)) @ inv
+
+    def facing(self, matrices: torch.Tensor, camera_center, cos_margin: float = 0.25) -> torch.Tensor:
+        """Indices of the Gaussians whose posed body-surface normal (LBS ``matrices`` of all the
+        Gaussians) does not point away from the camera by more than ``cos_margin`` (cosine of the
+        angle past grazing): the ones a view can show. The rest sit on the far side of a closed
+        body; a step from that view can skip them."""
+        with torch.no_grad():
+            M = matrices.detach()
+            x = apply_points(M, self.base_positions)
+            n = apply_normals(M, self.base_normals)
+            c = torch.as_tensor(np.asarray(camera_center), dtype=x.dtype, device=x.device)
+            view = safe_normalize(x - c)
+            keep = (view * n).sum(1) < cos_margin
+            return torch.nonzero(keep)[:, 0]
 
     def pose(self, canon: CanonicalGaussians, pose_transforms: torch.Tensor) -> PosedGaussians:
-        return self.pose_with(canon, self.lbs_matrices(pose_transforms))
+        return self.pose_with(canon, self.lbs_matrices(pose_transforms, canon.index))
 
     def pose_with(self, canon: CanonicalGaussians, matrices: torch.Tensor) -> PosedGaussians:
         """The Gaussians moved by per-Gaussian LBS ``matrices`` (N,4,4) (``lbs_matrices``)."""
-        return self.splats(canon, apply_points(matrices, canon.means), apply_normals(matrices, canon.normals))
+        tangents = None if canon.tangents is None else matrices[:, :3, :3] @ canon.tangents[..., None]
+        return self.splats(canon, apply_points(matrices, canon.means), apply_normals(matrices, canon.normals),
+                           None if tangents is None else tangents[..., 0])
 
     @staticmethod
-    def splats(canon: CanonicalGaussians, means: torch.Tensor | None = None,
-               normals: torch.Tensor | None = None) -> PosedGaussians:
-        """Renderable Gaussians at ``means``/``normals`` (default: the canonical ones, i.e. canonical
-        space), with the fixed identity rotation and opacity 1 (paper A.1)."""
+    def splats(canon: CanonicalGaussians, means: torch.Tensor | None = None, normals: torch.Tensor | None = None,
+               tangents: torch.Tensor | None = None) -> PosedGaussians:
+        """Renderable Gaussians at ``means``/``normals``/``tangents`` (default: the canonical ones,
+        i.e. canonical space), opacity 1; spheres with the identity rotation (paper A.1), discs
+        rotated into their tangent frame."""
         means = canon.means if means is None else means
+        normals = canon.normals if normals is None else normals
         n = means.shape[0]
-        quats = torch.zeros(n, 4, dtype=means.dtype, device=means.device)
-        quats[:, 0] = 1.0
-        return PosedGaussians(means, canon.normals if normals is None else normals, canon.colors, canon.scales, quats,
+        if canon.tangents is None:
+            quats = torch.zeros(n, 4, dtype=means.dtype, device=means.device)
+            quats[:, 0] = 1.0
+        else:
+            quats = frame_quaternions(canon.tangents if tangents is None else tangents, normals)
+        return PosedGaussians(means, normals, canon.colors, canon.scales, quats,
                               torch.ones(n, dtype=means.dtype, device=means.device))
 
     def parts(self) -> np.ndarray:

@@ -145,3 +145,44 @@ def texel_spacing(uv_map: UVMap) -> torch.Tensor:
     med = spacing[count > 0].median()
     spacing = torch.where(count > 0, torch.minimum(spacing, 3 * med), med)
     return spacing
+
+
+def texel_frames(uv_map: UVMap) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per valid texel, the surface's tangent frame as the UV grid lays it out: (N,3) unit tangent
+    ``t_u`` along the map's columns (+u), projected into the plane of the canonical normal, and
+    (N,2) the 3D lengths of one texel step along u and along v (the local texel spacing in each
+    direction: the footprint a flat Gaussian needs to meet its neighbours).
+
+    Steps are central differences over the valid 4-neighbours (one-sided at chart borders). Chart
+    borders can neighbour a far-away chart in the atlas: a step longer than 3x the median is
+    dropped; a texel without a usable step in a direction gets its isotropic ``texel_spacing`` and,
+    for u, a tangent built from the normal."""
+    pos, nrm = uv_map.positions, uv_map.normals
+    nb = torch.as_tensor(texel_neighbours(uv_map.texel_rc, uv_map.resolution))  # (+u, +row, -u, -row)
+    iso = texel_spacing(uv_map)
+    med = iso.median()
+    steps = []
+    for plus, minus, sign in ((0, 2, 1.0), (3, 1, 1.0)):  # u: columns; v: rows upwards (v = 1 - row / R)
+        total = torch.zeros_like(pos)
+        count = torch.zeros(len(pos), dtype=pos.dtype)
+        for k, s in ((plus, sign), (minus, -sign)):
+            idx = nb[:, k]
+            ok = idx >= 0
+            d = torch.zeros_like(pos)
+            d[ok] = s * (pos[idx[ok]] - pos[ok])
+            ok = ok & (d.norm(dim=1) <= 3 * med)
+            total[ok] += d[ok]
+            count[ok] += 1
+        steps.append((total / count.clamp_min(1)[:, None], count > 0))
+    (du, has_u), (dv, has_v) = steps
+    # tangent along u in the normal's plane; fallback: any direction perpendicular to the normal
+    t = du - (du * nrm).sum(1, keepdim=True) * nrm
+    good = has_u & (t.norm(dim=1) > 1e-3 * med)
+    helper = torch.where((nrm[:, 2:3].abs() < 0.9), torch.tensor([0.0, 0.0, 1.0], dtype=pos.dtype),
+                         torch.tensor([1.0, 0.0, 0.0], dtype=pos.dtype))
+    fallback = torch.linalg.cross(helper, nrm)
+    t = torch.where(good[:, None], t, fallback)
+    t = safe_normalize(t)
+    lu = torch.where(good, du.norm(dim=1), iso)
+    lv = torch.where(has_v & (dv.norm(dim=1) > 1e-3 * med), dv.norm(dim=1), iso)
+    return t, torch.stack([lu, lv], 1)

@@ -59,7 +59,14 @@ class Stage1Config(StageSettings):
     lambda_offset: float = 0.85
     lambda_scale: float = 0.03
     lambda_features: float = 1.0
-    # optimiser (GaussianAvatar: Adam, decoder 3e-3, feature map 5e-4; x lr_gamma at 1/3 and 2/3)
+    # learning-rate decay over the budget (steps or minutes, whichever ends first): constant until
+    # lr_decay_start of the stage, then geometric down to lr_final x at its end. GaussianAvatar's
+    # x lr_gamma drops at 1/3 and 2/3 (``lr_milestones``; used instead when set, as in ``paper()``)
+    # froze short runs: a 3-minute run spent two thirds of its steps at 1/10 and 1/100 of its rate.
+    lr_milestones: tuple[float, ...] = ()
+    lr_decay_start: float = 0.5
+    lr_final: float = 0.1
+    # optimiser (GaussianAvatar: Adam, decoder 3e-3, feature map 5e-4)
     lr_decoder: float = 3e-3
     lr_features: float = 5e-4
     # per-frame pose refinement (paper: on for in-the-wild videos, off where poses are accurate)
@@ -69,6 +76,9 @@ class Stage1Config(StageSettings):
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     crop_margin: int = 16  # render and compare only the body's box (plus margin) of each frame
+    # decode, pose and render only the Gaussians whose body normal does not point away from the
+    # frame's camera by more than this cosine past grazing (None: all, as the paper)
+    cull_backfacing: float | None = 0.25
     # LPIPS (only when the user supplies weights)
     lpips_net: str = "alex"
     lpips_backbone: str | None = None
@@ -92,3 +102,34 @@ class Stage1Config(StageSettings):
         if isinstance(self.avatar, dict):
             self.avatar = config_layer.from_dict(AvatarConfig, self.avatar, "avatar")
         super().__post_init__()
+        if not 0 <= self.lr_decay_start < 1 or not 0 < self.lr_final <= 1:
+            raise ValueError(f"need 0 <= lr_decay_start < 1 and 0 < lr_final <= 1, found {self.lr_decay_start} "
+                             f"and {self.lr_final}")
+
+    def lr_schedule(self) -> Scheduled:
+        if self.lr_milestones:
+            return super().lr_schedule()
+        return Scheduled.exponential(1.0, self.lr_decay_start, 1.0, self.lr_final)
+
+    @classmethod
+    def paper(cls, **kw) -> "Stage1Config":
+        """The settings before the Stage I fidelity work (GaussianAvatar's schedule, every Gaussian
+        decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
+        base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, avatar=AvatarConfig.paper())
+        return cls(**{**base, **kw})
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        """Settings recorded by a run; records older than a setting get the value that run used."""
+        d = dict(d)
+        if "cull_backfacing" not in d:  # recorded before the Stage I fidelity work
+            d["cull_backfacing"] = None
+            if isinstance(d.get("avatar"), dict) and "splat" not in d["avatar"]:
+                d["avatar"] = {**LEGACY_AVATAR, **d["avatar"]}
+        if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:
+            d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed
+        return super().from_dict(d)
+
+
+# avatar settings that runs recorded before the Stage I fidelity work used without naming them
+LEGACY_AVATAR = dict(decode_resolution=None, splat="sphere", scale_floor=0.0, color_residual=False)

@@ -46,6 +46,15 @@ def gaussians_finite(g) -> bool:
     return all(bool(torch.isfinite(t).all()) for t in (g.means, g.scales, g.colors, g.normals))
 
 
+class _ScatteredPositions:
+    """Means and normals of a subset of the Gaussians placed at their indices in full-size arrays
+    (what ``AvatarState.mark_seen`` looks up by Gaussian id)."""
+
+    def __init__(self, posed, index: torch.Tensor, n: int) -> None:
+        self.means = posed.means.detach().new_zeros(n, 3).index_copy(0, index, posed.means.detach())
+        self.normals = posed.normals.detach().new_zeros(n, 3).index_copy(0, index, posed.normals.detach())
+
+
 class TrainingStep(ABC):
     kind: str
 
@@ -71,8 +80,15 @@ class GivenViewStep(TrainingStep):
         i = trainer.next_frame()
         tgt = data.targets[i]
         refine = state.refine_poses and trainer.progress >= cfg.pose_refinement_start
-        canon, pose_features = state.decode(i)
-        posed = state.model.pose(canon, state.frame_transforms(i, refined=refine))
+        transforms = state.frame_transforms(i, refined=refine)
+        model = state.model
+        # decode only what this view can show: Gaussians on the far side of the body are skipped
+        margin = getattr(cfg, "cull_backfacing", None)
+        matrices = model.lbs_matrices(transforms)
+        index = None if margin is None else model.facing(matrices, tgt.camera.center, margin)
+        # state.decode(i) for the chosen Gaussians (with the edits: locked texels keep their attributes)
+        canon, pose_features = state.decode(i, index=index)
+        posed = model.pose_with(canon, matrices if index is None else matrices[index])
         if not gaussians_finite(posed):
             return StepOutcome(i, skipped=True)
         r = render_avatar(posed, tgt.camera, data.background, normals=data.use_normals, first_hit=self.marks_seen,
@@ -96,5 +112,11 @@ class GivenViewStep(TrainingStep):
             terms["pose_features"] = L.mean_square(pose_features)
             weights["pose_features"] = self.lambda_pose_features
         info = {"psnr_train": float(-10 * torch.log10(terms["rgb"].detach().clamp_min(1e-12)))}
-        after = (lambda: state.mark_seen(r.first_hit, posed, tgt.camera)) if self.marks_seen else None
+        after = None
+        if self.marks_seen:
+            def after() -> None:
+                hits = r.first_hit if index is None else torch.where(r.first_hit >= 0, index[r.first_hit.clamp_min(0)], -1)
+                full = posed if index is None else _ScatteredPositions(posed, index, state.num_gaussians)
+                state.mark_seen(hits, full, tgt.camera)
+        info["gaussians_decoded"] = int(state.num_gaussians if index is None else len(index))
         return StepOutcome(i, terms, weights, refine_poses=refine, info=info, after_update=after)
