@@ -2,7 +2,9 @@
 
 Files: ``checkpoint.pt`` (the running stage), ``checkpoint_stage1.pt`` (Stage I's, kept when
 Stage II starts), ``run.json`` (scene, stage, settings, versions), ``metrics.jsonl`` (training and
-evaluation records), ``.lock`` (held by the one process training into the folder).
+evaluation records), ``.lock`` (held by the one process training into the folder), ``edits/``
+(the user's edits: ``edits.json`` plus texel masks, ``reconstruct.edits.store``; applied to the
+avatar of every trainer opened from a checkpoint -- train, eval, export, the studio).
 
 It owns the exclusive lock (``lock()``), the run info, opening a trainer -- new, or resumed with
 the single dispatch on the checkpoint's stage -- and the switch to Stage II. ``train``, ``eval``,
@@ -166,7 +168,22 @@ class RunFolder:
             raise CheckpointError(f"{self.checkpoint}: unknown stage {stage}")
         trainer = Trainer(scene, cfg, self.path, scene_spec=state.get("scene_spec"), plan=plan)
         trainer.load_state_dict(state, str(self.checkpoint))
+        trainer.state.edits = self.load_edits(trainer.state.model).applied
         return trainer
+
+    # ----- edits ------------------------------------------------------------------------------
+    @property
+    def edits_path(self) -> Path:
+        from .edits.store import edits_path
+
+        return edits_path(self.path)
+
+    def load_edits(self, model):
+        """The folder's edits (``StoredEdits``: applied list, redo stack); ``EditsError`` naming
+        the file when it is malformed (nothing is written)."""
+        from .edits.store import load_edits
+
+        return load_edits(self.path, model.num_gaussians, model)
 
     def resume_training(self, scene=None, config: Stage1Config | None = None, stage2_overrides: dict | None = None,
                         *, progress: bool = False) -> Trainer:
@@ -174,6 +191,9 @@ class RunFolder:
         dropped (those steps are redone). Hold the lock."""
         trainer = self.resume(scene, config, stage2_overrides, progress=progress)
         trainer.log.truncate_after(trainer.step_count)
+        if trainer.stage == 2 and trainer.plan.sync_visibility(trainer.state):
+            print(f"{self.path}: the painted visibility changed: Stage II's views and propagated colours redone",
+                  file=sys.stderr)
         return trainer
 
     def load_scene(self, *, progress: bool = False):

@@ -41,6 +41,9 @@ class Snapshot:
     mesh_faces: np.ndarray | None = None  # (F,3) int32
     joints: np.ndarray | None = None  # (J,3) joint positions
     joint_parents: np.ndarray | None = None  # (J,) int, -1 for roots
+    # edits (reconstruct.edits)
+    ids: np.ndarray | None = None  # (N,) int32 Gaussian (texel) index of each row; None: all Gaussians in order
+    highlight: np.ndarray | None = None  # (N,) uint8 per row, 1 = selected (EditSession.highlight)
 
     def __len__(self) -> int:
         return int(self.means.shape[0])

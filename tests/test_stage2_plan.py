@@ -209,3 +209,17 @@ def test_stage2_starts_alike_in_the_same_process_and_from_a_reloaded_stage1(stag
     for _ in range(4):
         x, y = a.step(), b.step()
         assert x["step_kind"] == y["step_kind"] and x["loss"] == pytest.approx(y["loss"], rel=1e-6)
+
+
+def test_texture_space_pseudo_colour_term(stage1):
+    """lambda_pseudo_color > 0: guidance steps log the per-Gaussian colour term towards the
+    pseudo-appearance (the untrusted Gaussians only, or every one with pseudo_color_all)."""
+    s2 = _start(stage1, _cfg(given_view_ratio=0.0, iters=4, lambda_pseudo_color=1.0, progressive=False))
+    plan = s2.plan
+    with torch.no_grad():
+        colors = s2.state.canonical(None).colors
+        free = ~s2.state.trusted_seen
+        expect = float(((colors[free] - plan.pseudo_colors[free]) ** 2).mean())
+    out = s2.step()
+    assert out["step_kind"] in ("canonical", "observation")
+    assert out["pseudo_color"] == pytest.approx(expect, rel=1e-3, abs=1e-7)

@@ -5,17 +5,26 @@ per-frame pose corrections, and the visibility flags: ``seen`` (Eq. 7, marked du
 ``trusted_seen`` (the flags shrunk on the UV grid that Stage II works with). Everything that
 renders or exports an avatar asks it for Gaussians -- canonical or posed, at a video frame or at
 any pose -- and ``frozen()`` gives a copy that no longer changes (exports while training goes on).
+
+Edits (``reconstruct.edits``: lock, erase, recolour, redo, painted visibility) apply here, at one
+place between the decoder and everything that renders, trains or exports: ``decode`` (locks and
+colour edits, so training steps see them too), ``posed`` / ``posed_at`` / ``splats`` (erased
+Gaussians at opacity 0), ``snapshot`` (erased rows dropped, ``Snapshot.ids`` naming the rest) and
+the seen flags (``seen_flags()`` and ``trusted_seen`` return the painted map; the trained flags
+stay underneath, in ``seen`` and the checkpoint).
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 import torch
 
 from ..body.base import BodyModel
 from ..body.pose import BodyPose
+from ..edits.edit_list import EditList
 from ..snapshot import Snapshot
 from .model import AvatarModel, CanonicalGaussians, PosedGaussians
 
@@ -32,7 +41,8 @@ class AvatarState:
         J = body.num_joints
         self.pose_delta = torch.nn.Parameter(torch.zeros(len(self.poses), J + 2, 3, dtype=torch.float64))
         self.seen = torch.zeros(model.num_gaussians, dtype=torch.bool)
-        self.trusted_seen: torch.Tensor | None = None
+        self._trusted_seen: torch.Tensor | None = None  # Stage II's flags as computed (unpainted)
+        self.edits = EditList((), model.num_gaussians)
         self._transforms: dict[int, torch.Tensor] = {}
         self._articulations: dict[int, torch.Tensor] = {}
 
@@ -90,49 +100,77 @@ class AvatarState:
                                         else self.articulation_of_pose(self.poses[frame]))
         return self._articulations[key]
 
+    # ----- visibility flags (painted) -------------------------------------------------------
+    @property
+    def trusted_seen(self) -> torch.Tensor | None:
+        """Stage II's seen flags (eroded Stage I flags) with the painted overrides applied: what
+        view selection, propagation and the guidance losses use. Assigning sets the flags under
+        the paint."""
+        t = self._trusted_seen
+        return None if t is None else self.edits.paint(t)
+
+    @trusted_seen.setter
+    def trusted_seen(self, flags: torch.Tensor | None) -> None:
+        self._trusted_seen = flags
+
     # ----- Gaussians ------------------------------------------------------------------------
-    def decode(self, frame: int | None = None, pose: BodyPose | None = None
+    def decode(self, frame: int | None = None, pose: BodyPose | None = None, index: torch.Tensor | None = None
                ) -> tuple[CanonicalGaussians, torch.Tensor | None]:
         """G([S, S]) -- or with pose injection G([S, P]) for video frame ``frame`` / ``pose`` (the
         canonical pose when neither is given) -- and the pose features E(P_uv) (None without pose
-        injection) for their regulariser."""
-        if self.model.pose_encoder is None:
-            return self.model.canonical(), None
-        art = self.articulation_of_pose(pose) if pose is not None else self.articulation(frame)
-        pf = self.model.pose_features(art)
-        return self.model.canonical(pf), pf
+        injection) for their regulariser; only the Gaussians ``index`` when given. Locks and colour
+        edits are applied."""
+        pf = None
+        if self.model.pose_encoder is not None:
+            art = self.articulation_of_pose(pose) if pose is not None else self.articulation(frame)
+            pf = self.model.pose_features(art)
+        canon = self.model.canonical(pf, index=index) if index is not None else self.model.canonical(pf)
+        if self.edits:
+            canon = self.edits.apply_canonical(canon, self, frame, pose)
+        return canon, pf
 
     def canonical(self, frame: int | None = None, pose: BodyPose | None = None) -> CanonicalGaussians:
         return self.decode(frame, pose)[0]
 
     def posed(self, frame: int) -> PosedGaussians:
         """The avatar in observation space at video frame ``frame``."""
-        return self.model.pose(self.canonical(frame), self.frame_transforms(frame))
+        return self.edits.apply_posed(self.model.pose(self.canonical(frame), self.frame_transforms(frame)))
 
     def posed_at(self, pose: BodyPose) -> PosedGaussians:
         """The avatar at any pose of its body (novel poses, motion files)."""
-        return self.model.pose(self.canonical(pose=pose), self.pose_transforms(pose))
+        return self.edits.apply_posed(self.model.pose(self.canonical(pose=pose), self.pose_transforms(pose)))
 
     def splats(self, space: str = "observation", frame: int = 0) -> PosedGaussians:
         if space == "canonical":
-            return self.model.splats(self.canonical(None))
+            return self.edits.apply_posed(self.model.splats(self.canonical(None)))
         if space == "observation":
             return self.posed(frame)
         raise ValueError(f"snapshot space must be 'observation' or 'canonical', found {space!r}")
 
     def seen_flags(self) -> torch.Tensor:
-        """The flags the visibility mode shows: Stage II's trusted ones once it has them."""
-        return self.trusted_seen if self.trusted_seen is not None else self.seen
+        """The flags the visibility mode shows: Stage II's trusted ones once it has them, painted."""
+        t = self.trusted_seen
+        return t if t is not None else self.edits.paint(self.seen)
+
+    def _snapshot(self, g: PosedGaussians, **meta) -> Snapshot:
+        snap = Snapshot.from_gaussians(g, self.seen_flags(), **meta)
+        erased = self.edits.erased
+        if erased is None or not erased.any():
+            return snap
+        keep = ~erased
+        arrays = {k: getattr(snap, k)[keep] for k in ("means", "scales", "rotations", "colors", "opacities",
+                                                      "normals", "visibility")}
+        return dataclasses.replace(snap, **arrays, ids=np.flatnonzero(keep).astype(np.int32))
 
     @torch.no_grad()
     def snapshot(self, space: str = "observation", frame: int = 0, **meta) -> Snapshot:
-        return Snapshot.from_gaussians(self.splats(space, frame), self.seen_flags(), space=space, frame_index=frame,
-                                       **meta)
+        """What renderers and exports draw: erased Gaussians left out (``Snapshot.ids`` names the
+        Gaussian of each row then)."""
+        return self._snapshot(self.splats(space, frame), space=space, frame_index=frame, **meta)
 
     @torch.no_grad()
     def snapshot_at_pose(self, pose: BodyPose, frame: int = 0, **meta) -> Snapshot:
-        return Snapshot.from_gaussians(self.posed_at(pose), self.seen_flags(), space="observation", frame_index=frame,
-                                       **meta)
+        return self._snapshot(self.posed_at(pose), space="observation", frame_index=frame, **meta)
 
     # ----- copies and checkpoints -------------------------------------------------------------
     def frozen(self) -> "AvatarState":
@@ -143,7 +181,8 @@ class AvatarState:
         with torch.no_grad():
             f.pose_delta = torch.nn.Parameter(self.pose_delta.detach().clone(), requires_grad=False)
         f.seen = self.seen.clone()
-        f.trusted_seen = None if self.trusted_seen is None else self.trusted_seen.clone()
+        f._trusted_seen = None if self._trusted_seen is None else self._trusted_seen.clone()
+        f.edits = self.edits  # immutable
         f._transforms = dict(self._transforms)
         f._articulations = dict(self._articulations)
         return f
@@ -151,7 +190,7 @@ class AvatarState:
     def state_dict(self) -> dict:
         return {"model": self.model.state_dict(), "pose_delta": self.pose_delta.detach().clone(),
                 "seen": self.seen.clone(),
-                "trusted_seen": None if self.trusted_seen is None else self.trusted_seen.clone()}
+                "trusted_seen": None if self._trusted_seen is None else self._trusted_seen.clone()}
 
     def load_state_dict(self, state: dict) -> None:
         self.model.load_state_dict(state["model"])
@@ -159,7 +198,7 @@ class AvatarState:
             self.pose_delta.copy_(state["pose_delta"])
         self.seen = state["seen"].clone()
         ts = state.get("trusted_seen")
-        self.trusted_seen = None if ts is None else ts.clone()
+        self._trusted_seen = None if ts is None else ts.clone()
 
     @torch.no_grad()
     def mark_seen(self, first_hit: torch.Tensor, posed: PosedGaussians, camera) -> None:

@@ -1,6 +1,9 @@
 """The built-in prior: no learned weights. The unseen view is pulled towards the same view of the
-avatar rendered with *propagated appearance* (colours carried from the seen Gaussians over the
-body surface, reconstruct.stage2.propagation), a pseudo-target supplied by the caller.
+avatar rendered with *wrap-around appearance*: each garment's low-frequency colours and
+height-periodic patterns carried round from the sides the video saw to the unseen side, front-only
+details (a chest print, the face) left out (reconstruct.stage2.wrap_fill; the earlier diffusion
+fill with mirrored colours, reconstruct.stage2.propagation, with ``propagation=diffusion``), a
+pseudo-target supplied by the caller.
 
 It is a pseudo-target regression, not a diffusion model: the loss is the mean squared error
 between the render and the (stop-gradient) pseudo-target over the body's pixels."""
@@ -13,7 +16,7 @@ from .base import GuidanceInput, GuidanceOutput, GuidancePrior, PriorError
 
 
 class PropagatedAppearancePrior(GuidancePrior):
-    name = "propagated appearance (built-in, no weights)"
+    name = "wrap-around appearance (built-in pseudo-target, no weights)"
 
     def loss(self, inp: GuidanceInput) -> GuidanceOutput:
         if inp.pseudo_target is None:

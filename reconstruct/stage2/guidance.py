@@ -132,6 +132,15 @@ class GuidanceStep(TrainingStep):
         if s2.unseen_normals and r.normal is not None:
             terms["unseen_normal"] = L.mse(r.normal, detached_targets()[..., 3:])
             weights["unseen_normal"] = s2.lambda_unseen_normal * (w / s2.lambda_sds if s2.lambda_sds > 0 else 0.0)
+        if s2.lambda_pseudo_color > 0 and plan.pseudo_colors is not None and s2.prior == "builtin":
+            # the same pseudo-appearance in texture space (every Gaussian each step, not only those
+            # this view shows): the repainted ones towards the propagated colours and, with
+            # pseudo_color_all, the trusted ones towards their Stage I colours (as in the render target)
+            free = torch.ones_like(state.trusted_seen, device=device) if s2.pseudo_color_all \
+                else ~state.trusted_seen.to(device)
+            if bool(free.any()):
+                terms["pseudo_color"] = L.mse(canon.colors[free], plan.pseudo_colors[free])
+                weights["pseudo_color"] = s2.lambda_pseudo_color * (w / s2.lambda_sds if s2.lambda_sds > 0 else 0.0)
         if pose_features is not None:
             terms["pose_features"] = L.mean_square(pose_features)
             weights["pose_features"] = s2.lambda_pose_features

@@ -30,6 +30,7 @@ from ..train.steps import GivenViewStep
 from .config import Stage2Config
 from .guidance import GuidanceStep, Stage2Error, framed_camera, square_crop
 from .propagation import erode, propagate_colors
+from .wrap_fill import wrap_fill_colors
 from .view_selection import (CandidateView, ViewSelectionConfig, azimuth_of, candidate_cameras, elevation_of,
                              select_views)
 
@@ -76,6 +77,7 @@ class Stage2Plan(StagePlan):
         self.canonical_reference: torch.Tensor | None = None
         self.sds_note: str | None = None
         self._references: dict[int, torch.Tensor] = {}
+        self.visibility_key = ""  # the painted visibility (edits) the views and pseudo-colours were made for
 
     # ----- the plan's interface -------------------------------------------------------------
     def param_groups(self, state: AvatarState) -> list[dict]:
@@ -174,10 +176,39 @@ class Stage2Plan(StagePlan):
         front = Camera.orbit(0.0, 0.0, self.view_config().distance, target, width=512, height=512, fov_y_deg=30.0)
         cam = framed_camera(front, g.means, self.settings.prior_size)
         self.canonical_reference = render_avatar(g, cam, self.guidance_background, normals=False).rgb.clamp(0, 1)
-        self.pseudo_colors = propagate_colors(model.base_positions, model.parts(), state.trusted_seen,
-                                              canon.colors, nb).to(state.device)
+        self.pseudo_colors = self.propagated_colors(model, state.trusted_seen, canon.colors, nb).to(state.device)
+        self.visibility_key = state.edits.visibility_key()
         if self.sds_note:
             print(self.sds_note, file=sys.stderr)
+
+    @torch.no_grad()
+    def refresh_visibility(self, state: AvatarState) -> None:
+        """After the painted visibility changed (edits: seen / unseen / redo): view selection and
+        the propagated appearance redone on the painted flags (``state.trusted_seen``)."""
+        model = state.model
+        self.reselect_views(state)
+        nb = texel_neighbours(model.uv_map.texel_rc, model.uv_map.resolution)
+        self.pseudo_colors = self.propagated_colors(model, state.trusted_seen, state.canonical(None).colors,
+                                                    nb).to(state.device)
+        self.visibility_key = state.edits.visibility_key()
+
+    def sync_visibility(self, state: AvatarState) -> bool:
+        """``refresh_visibility`` when the painted visibility is not the one the plan was made for
+        (edits made elsewhere, e.g. the headless ``edit`` command). True when it refreshed."""
+        if state.edits.visibility_key() == self.visibility_key:
+            return False
+        self.refresh_visibility(state)
+        return True
+
+    def propagated_colors(self, model, seen: torch.Tensor, colors: torch.Tensor, neighbours: np.ndarray) -> torch.Tensor:
+        """The built-in prior's pseudo-appearance: the unseen Gaussians' colours carried from the
+        seen ones (``propagation``: ``wrap``, the wrap-around fill of wrap_fill.py, or ``diffusion``,
+        the earlier screened harmonic fill with mirrored colours)."""
+        colors = colors.detach().cpu()
+        if self.settings.propagation == "diffusion":
+            return propagate_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours)
+        return wrap_fill_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours,
+                                normals=model.base_normals.cpu())
 
     def reference_image(self, trainer: Trainer, frame: int | None) -> torch.Tensor:
         if frame is None:
@@ -212,12 +243,14 @@ class Stage2Plan(StagePlan):
                                   for v in s.views]}
                        for s in self.spaces],
             "sds_note": self.sds_note,
+            "visibility_key": self.visibility_key,
         }
 
     def load_state_dict(self, d: dict, device) -> None:
         self.pseudo_colors = d["pseudo_colors"].to(device)
         self.canonical_reference = d["canonical_reference"].to(device)
         self.sds_note = d.get("sds_note")
+        self.visibility_key = str(d.get("visibility_key", ""))
         cfg = self.view_config()
         self.spaces = []
         for s in d["spaces"]:

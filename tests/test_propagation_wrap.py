@@ -1,0 +1,140 @@
+"""The wrap-around fill (reconstruct.stage2.wrap_fill) on hand-built surfaces with known answers:
+a striped cylinder with a front emblem (the back gets the stripes at the right heights, none of
+the emblem), checks that vary left-right (the back continues them with their phase), and a head
+with a face in front and hair at the sides (the back gets hair, not skin)."""
+
+import numpy as np
+import torch
+
+from reconstruct.body.parts import PART_INDEX
+from reconstruct.stage2.wrap_fill import WrapFillConfig, wrap_fill_colors
+
+RED, WHITE, BLUE, SKIN, HAIR, YELLOW = (np.array(c, float) for c in (
+    (0.8, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.2, 0.8), (0.9, 0.7, 0.6), (0.2, 0.1, 0.05), (1.0, 0.9, 0.0)))
+
+
+def cylinder(radius=0.15, height=0.5, n_theta=96, n_z=100, z0=1.0):
+    """Points on a vertical cylinder; theta = 0 faces the front (-Y). Returns positions, theta."""
+    th, z = np.meshgrid(np.linspace(-np.pi, np.pi, n_theta, endpoint=False), np.linspace(z0, z0 + height, n_z))
+    th, z = th.ravel(), z.ravel()
+    pos = np.c_[radius * np.sin(th), -radius * np.cos(th), z]
+    return pos, th
+
+
+def seen_front(th, half_angle_deg=100.0):
+    return np.abs(np.degrees(th)) <= half_angle_deg
+
+
+def stripes(z, period=0.08):
+    return np.where(np.sin(z * 2 * np.pi / period) > 0, 1.0, 0.0)
+
+
+def test_stripes_carried_by_height_and_emblem_left_out():
+    pos, th = cylinder()
+    t = stripes(pos[:, 2])[:, None]
+    truth = RED * (1 - t) + WHITE * t
+    col = truth.copy()
+    emblem = (np.abs(pos[:, 0] - 0.05) < 0.06) & (np.abs(pos[:, 2] - 1.3) < 0.06) & (np.abs(np.degrees(th)) < 60)
+    col[emblem] = YELLOW
+    seen = seen_front(th)
+    parts = np.full(len(pos), PART_INDEX["torso"])
+    out = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0)).numpy()
+    back = ~seen
+    # away from the stripe edges (where a 1 cm slab mixes both), the back shows the stripe of its height
+    phase = (pos[:, 2] % 0.08) / 0.08
+    interior = back & (np.abs(phase - 0.25) < 0.15) | back & (np.abs(phase - 0.75) < 0.15)
+    assert np.abs(out[interior] - truth[interior]).max() < 1e-6
+    # no emblem colour anywhere on the back (it never reaches the sides)
+    assert np.linalg.norm(out[back] - YELLOW, axis=1).min() > 0.3
+    # seen colours unchanged
+    np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
+
+
+def test_emblem_reaching_one_side_is_left_out():
+    pos, th = cylinder()
+    col = np.tile(BLUE, (len(pos), 1))
+    # an off-centre emblem reaching round the left side up to the visibility boundary
+    deg = np.degrees(th)
+    emblem = (deg > 30) & (deg < 100) & (np.abs(pos[:, 2] - 1.25) < 0.07)
+    col[emblem] = YELLOW
+    seen = seen_front(th)
+    out = wrap_fill_colors(pos, np.zeros(len(pos), int), seen, col, None, WrapFillConfig(smooth_sweeps=0)).numpy()
+    np.testing.assert_allclose(out[~seen], np.tile(BLUE, ((~seen).sum(), 1)), atol=1e-6)
+
+
+def test_checks_continue_with_their_left_right_phase():
+    pos, th = cylinder()
+    period = 0.1
+    a = np.sin(pos[:, 2] * 2 * np.pi / period) > 0
+    b = np.sin(pos[:, 0] * 2 * np.pi / period) > 0
+    truth = np.where((a ^ b)[:, None], RED, WHITE)  # a function of x and z: the back is the front's mirror
+    seen = seen_front(th, 95)
+    out = wrap_fill_colors(pos, np.zeros(len(pos), int), seen, truth, None, WrapFillConfig(smooth_sweeps=0)).numpy()
+    back = ~seen
+    agree = np.linalg.norm(out[back] - truth[back], axis=1) < 1e-6
+    assert agree.mean() > 0.9
+
+
+def test_head_back_is_hair_not_face():
+    # a sphere-ish head: face in front (|theta| < 60 deg, below the hairline), hair elsewhere
+    pos, th = cylinder(radius=0.09, height=0.22, n_theta=72, n_z=44, z0=1.55)
+    face = (np.abs(np.degrees(th)) < 60) & (pos[:, 2] < 1.72)
+    col = np.where(face[:, None], SKIN, HAIR)
+    seen = seen_front(th, 100)
+    parts = np.full(len(pos), PART_INDEX["head"])
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    back = ~seen
+    assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
+
+
+def test_parts_are_filled_separately_and_returns_float32_tensor():
+    pos, th = cylinder()
+    torso_top = pos[:, 2] > 1.25
+    parts = np.where(torso_top, PART_INDEX["torso"], PART_INDEX["thigh.L"])
+    col = np.where(torso_top[:, None], RED, BLUE)
+    seen = seen_front(th)
+    out = wrap_fill_colors(torch.as_tensor(pos), parts, torch.as_tensor(seen), torch.as_tensor(col), None)
+    assert out.dtype == torch.float32 and out.shape == (len(pos), 3)
+    o = out.numpy()
+    np.testing.assert_allclose(o[~seen & torso_top], np.tile(RED, ((~seen & torso_top).sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(o[~seen & ~torso_top], np.tile(BLUE, ((~seen & ~torso_top).sum(), 1)), atol=1e-6)
+
+
+def test_nothing_seen_or_everything_seen():
+    pos, th = cylinder(n_theta=16, n_z=8)
+    col = np.random.default_rng(0).random((len(pos), 3))
+    parts = np.zeros(len(pos), int)
+    np.testing.assert_allclose(wrap_fill_colors(pos, parts, np.ones(len(pos), bool), col).numpy(), col, atol=1e-6)
+    np.testing.assert_allclose(wrap_fill_colors(pos, parts, np.zeros(len(pos), bool), col).numpy(), col, atol=1e-6)
+
+
+def test_grazing_seen_gaussians_are_repainted_except_on_the_head():
+    from reconstruct.stage2.wrap_fill import reliable_seen
+
+    pos, th = cylinder()
+    normals = np.c_[np.sin(th), -np.cos(th), np.zeros_like(th)]
+    seen = seen_front(th, 100)
+    torso = np.full(len(pos), PART_INDEX["torso"])
+    rel = reliable_seen(seen, normals, torso)
+    deg = np.abs(np.degrees(th))
+    # the mean seen normal is the front (-Y): seen beyond 70 degrees is not a colour source
+    assert rel[seen & (deg < 65)].all() and not rel[seen & (deg > 75)].any()
+    head = np.full(len(pos), PART_INDEX["head"])
+    np.testing.assert_array_equal(reliable_seen(seen, normals, head), seen)
+    # dark fringe colours (as Stage I learns them at the silhouette) do not reach the back
+    col = np.tile(BLUE, (len(pos), 1))
+    col[seen & (deg > 80)] *= 0.3
+    out = wrap_fill_colors(pos, torso, seen, col, None, normals=normals).numpy()
+    np.testing.assert_allclose(out[~seen], np.tile(BLUE, ((~seen).sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(out[seen & (deg > 80)], np.tile(BLUE, ((seen & (deg > 80)).sum(), 1)), atol=1e-6)
+
+
+def test_stage2_config_propagation_choices():
+    import pytest
+
+    from reconstruct.stage2.config import Stage2Config
+
+    assert Stage2Config().propagation == "wrap"
+    Stage2Config(propagation="diffusion")
+    with pytest.raises(ValueError, match="propagation"):
+        Stage2Config(propagation="mirror")
