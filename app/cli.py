@@ -113,14 +113,51 @@ def _stage2_overrides(args) -> dict:
 def _cmd_eval(args) -> int:
     from app.train_cmd import evaluate
 
-    return evaluate(args.run, as_json=args.json)
+    return evaluate(args.run, as_json=args.json, scale=args.scale)
+
+
+def _export_what(args) -> str:
+    """Which export the flags ask for: orbit, poses, novel, motion, canonical or frame (.ply only);
+    mistakes are argparse usage errors (exit status 2, nothing read or written)."""
+    parser = args.export_parser
+    if (args.out is None) == (args.ply is None):
+        parser.error("give one of --out FILE.mp4|.gif (a video) and --ply OUT (the Gaussians as .ply)")
+    chosen = [k for k in ("orbit", "poses", "novel", "motion") if getattr(args, k) is not None]
+    chosen += ["canonical"] if args.canonical else []
+    if args.ply is None:
+        if not chosen:
+            parser.error("a video needs one of --orbit N, --poses SCENE, --novel NAME, --motion FILE")
+        if args.canonical:
+            parser.error("--canonical is for --ply (the canonical-space Gaussians); for a video use --orbit")
+        return chosen[0]
+    if args.orbit is not None:
+        parser.error("--orbit makes a video (--out); a .ply holds one pose (--frame, --canonical) or a sequence "
+                     "(--poses, --novel, --motion)")
+    if chosen and args.frame is not None:
+        parser.error(f"--frame picks the pose of a single .ply; it cannot go with --{chosen[0]}")
+    return chosen[0] if chosen else "frame"
 
 
 def _cmd_export(args) -> int:
-    from app.export import VIDEO_SUFFIXES, check_destination, export_novel, export_orbit, export_poses
+    from app.export import (
+        VIDEO_SUFFIXES,
+        check_destination,
+        check_motion_times,
+        check_ply_destination,
+        export_novel,
+        export_orbit,
+        export_poses,
+        motion_poses,
+        plan_motion,
+        plan_ply,
+        read_motion,
+        render_plan,
+        write_ply_plan,
+    )
     from reconstruct.data.load import load_scene
     from reconstruct.run_folder import RunFolder
 
+    what = _export_what(args)
     run = RunFolder(args.run)
     run.check("export")
     if args.orbit is not None and args.orbit < 1:
@@ -132,20 +169,55 @@ def _cmd_export(args) -> int:
             raise ValueError(f"--novel {args.novel!r}: choose one of {', '.join(NOVEL_POSES)}")
         if args.frames < 2:
             raise ValueError(f"--frames must be at least 2, found {args.frames}")
-    check_destination(args.out, suffixes=VIDEO_SUFFIXES)  # before any loading or rendering
+    if what != "motion" and (args.start is not None or args.end is not None or args.loop):
+        raise ValueError("--start, --end and --loop apply to --motion only")
+    if args.fps is not None and args.fps <= 0:
+        raise ValueError(f"--fps must be positive, found {args.fps}")
+    # before any loading or rendering: the destination, then the motion file
+    if args.ply is not None:
+        check_ply_destination(args.ply, sequence=what not in ("frame", "canonical"), overwrite=args.overwrite)
+    else:
+        check_destination(args.out, suffixes=VIDEO_SUFFIXES)
+    clip = None
+    if what == "motion":
+        check_motion_times(args.start, args.end)
+        clip = read_motion(args.motion)
     avatar = run.resume().avatar()
     scene = avatar.scene
-    common = {"mode": args.mode, "progress": not args.quiet}
-    if args.orbit is not None:
-        fps = 30 if args.fps is None else args.fps
-        out = export_orbit(avatar, args.out, frames=args.orbit, size=args.size, fps=fps, frame_index=args.frame,
-                           **common)
-    elif args.novel is not None:
-        out = export_novel(avatar, args.out, args.novel, frames=args.frames, size=args.size, fps=args.fps, **common)
-    else:
+    progress = not args.quiet
+    motion = None
+    if clip is not None:
+        import time
+
+        t0 = time.perf_counter()
+        motion = motion_poses(avatar, clip, fps=args.fps, start=args.start, end=args.end, loop=args.loop)
+        print(f"{args.motion}: {clip.num_frames} frames at {clip.fps:g} fps -> {len(motion)} frames at "
+              f"{motion.fps:g} fps on the avatar's body (retargeted in {time.perf_counter() - t0:.2f} s)")
+        for note in motion.notes:
+            print(f"  - {note}")
+    poses = None
+    if what == "poses":
         poses = load_scene(args.poses, progress=False)
         if poses.name == scene.name:
             poses = scene  # the run's own scene: use the avatar's (possibly refined) poses
+    if args.ply is not None:
+        plan = plan_ply(avatar, args.ply, frame=args.frame if what == "frame" else None,
+                        canonical=what == "canonical", novel=args.novel, frames=args.frames, motion=motion,
+                        scene=poses, overwrite=args.overwrite)
+        out = write_ply_plan(plan, up=args.up, sh_degree=args.sh_degree, progress=progress, overwrite=args.overwrite)
+        count = f" ({len(plan)} frames, frame_0000.ply ...)" if plan.sequence else ""
+        print(f"wrote {out}{count}")
+        return 0
+    common = {"mode": args.mode, "progress": progress}
+    if what == "orbit":
+        fps = 30 if args.fps is None else args.fps
+        out = export_orbit(avatar, args.out, frames=args.orbit, size=args.size, fps=fps,
+                           frame_index=args.frame or 0, **common)
+    elif what == "novel":
+        out = export_novel(avatar, args.out, args.novel, frames=args.frames, size=args.size, fps=args.fps, **common)
+    elif what == "motion":
+        out = render_plan(plan_motion(avatar, args.out, motion, size=args.size), **common)
+    else:
         out = export_poses(avatar, args.out, scene=poses, size=args.size, fps=args.fps, **common)
     print(f"wrote {out}")
     return 0
@@ -160,13 +232,19 @@ def _cmd_migrate(args) -> int:
 def _cmd_studio(args) -> int:
     from app.studio.window import NO_DISPLAY_MESSAGE, NoDisplayError, display_available
 
+    if args.studio_ply is not None and (args.studio_run is not None or args.studio_scene is not None):
+        raise ValueError("--ply opens the .ply viewer (no training); it cannot go with --scene or --run")
     if not display_available():
         print(NO_DISPLAY_MESSAGE)
         return 1
-    from app.studio.window import run_studio
-
     try:
-        return run_studio(args.studio_scene, args.studio_run)
+        if args.studio_ply is not None:
+            from app.studio.viewer import run_viewer
+
+            return run_viewer(args.studio_ply)
+        from app.studio.window import run_studio
+
+        return run_studio(args.studio_scene or DEFAULT_SCENE, args.studio_run)
     except NoDisplayError:
         print(NO_DISPLAY_MESSAGE)
         return 1
@@ -176,10 +254,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="wonderhuman-studio",
                                 description="Animatable 3D Gaussian avatars from monocular front-view video. "
                                             "With no subcommand: the interactive studio window.")
-    p.add_argument("--scene", dest="studio_scene", metavar="SCENE", default=DEFAULT_SCENE,
-                   help="studio: scene folder or synthetic:seed=S to train on")
+    p.add_argument("--scene", dest="studio_scene", metavar="SCENE", default=None,
+                   help=f"studio: scene folder or synthetic:seed=S to train on (default {DEFAULT_SCENE})")
     p.add_argument("--run", dest="studio_run", metavar="RUN", type=Path, default=None,
                    help="studio: run folder (resumes its checkpoint; saved to on exit)")
+    p.add_argument("--ply", dest="studio_ply", metavar="FILE", type=Path, default=None,
+                   help="studio: view a 3DGS .ply (ours or any other program's) without training")
     sub = p.add_subparsers(dest="command")
 
     s = sub.add_parser("synth", help="write a synthetic scene folder (body, clothing, motion, cameras, ground truth)")
@@ -244,25 +324,47 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("eval", help="evaluate a run on its scene's held-out views; writes RUN/error_vs_time.png")
     s.add_argument("run", type=Path)
     s.add_argument("--json", action="store_true")
+    s.add_argument("--scale", type=int, default=1,
+                   help="render every view at this multiple of the scene's resolution (holes show at zoom); "
+                        "adds hole fraction and alpha IoU at that scale")
     s.set_defaults(func=_cmd_eval)
 
-    s = sub.add_parser("export", help="render a trained avatar as a video (.mp4/.gif): 360° orbit or a scene's poses")
+    s = sub.add_parser("export", help="render a trained avatar as a video (.mp4/.gif: 360° orbit, a scene's poses, a "
+                                      "novel sequence or a motion file) or write its Gaussians as 3DGS .ply")
     s.add_argument("run", type=Path)
-    what = s.add_mutually_exclusive_group(required=True)
-    what.add_argument("--orbit", type=int, metavar="N", help="a full orbit of N frames around the avatar")
+    what = s.add_mutually_exclusive_group()
+    what.add_argument("--orbit", type=int, metavar="N", help="a full orbit of N frames around the avatar (video)")
     what.add_argument("--poses", metavar="SCENE", help="one frame per pose of SCENE (folder or synthetic:...), "
                                                        "seen from its training camera")
     what.add_argument("--novel", metavar="NAME", help="a novel pose sequence: walk (a walk cycle) or arms_up, "
                                                       "seen from the video's first training camera")
-    s.add_argument("--out", required=True, type=Path, help="output file (.mp4 or .gif)")
+    what.add_argument("--motion", metavar="FILE", type=Path,
+                      help="a motion file (.bvh, SMPL/SMPL-H/SMPL-X .npz) retargeted onto the avatar, starting where "
+                           "the video's first frame stands (docs/motion.md)")
+    what.add_argument("--canonical", action="store_true", help="--ply: the Gaussians in the canonical space")
+    out = s.add_argument_group("output (one of)")
+    out.add_argument("--out", type=Path, default=None, help="video file (.mp4 or .gif)")
+    out.add_argument("--ply", type=Path, default=None, metavar="OUT",
+                     help="3DGS .ply: OUT.ply for one pose (--frame F, default 0, or --canonical); a new folder "
+                          "for a sequence (--poses, --novel, --motion): OUT/frame_0000.ply ... (docs/ply.md)")
     s.add_argument("--size", type=int, default=512, help="frame size in pixels (longer side for --poses)")
     s.add_argument("--fps", type=float, default=None,
-                   help="frames per second (default 30 for --orbit, the scene's for --poses and --novel)")
-    s.add_argument("--frame", type=int, default=0, help="pose (frame index) the orbit shows")
+                   help="frames per second (default 30 for --orbit, the scene's otherwise; --motion is resampled to it)")
+    s.add_argument("--frame", type=int, default=None, help="pose (frame index) the orbit or the single .ply shows (0)")
     s.add_argument("--frames", type=int, default=30, help="frames of a --novel sequence")
     s.add_argument("--mode", default="rgb", choices=["rgb", "normal", "depth", "alpha", "visibility"])
+    m = s.add_argument_group("--motion")
+    m.add_argument("--start", type=float, default=None, help="seconds into the motion file to start at")
+    m.add_argument("--end", type=float, default=None, help="seconds into the motion file to end at")
+    m.add_argument("--loop", action="store_true", help="make the motion loop seamlessly (in place)")
+    p_ = s.add_argument_group("--ply")
+    p_.add_argument("--up", default="y_down", choices=["y_down", "z_up"],
+                    help="y_down: the 3DGS/COLMAP convention splat viewers expect (default); z_up: ours")
+    p_.add_argument("--sh-degree", type=int, default=3, choices=[0, 1, 2, 3],
+                    help="SH degree of the file (higher coefficients are zero; 3 is what viewers expect)")
+    p_.add_argument("--overwrite", action="store_true", help="replace an existing sequence folder")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
-    s.set_defaults(func=_cmd_export)
+    s.set_defaults(func=_cmd_export, export_parser=s)
 
     s = sub.add_parser("migrate", help="convert a run folder's checkpoints written by an earlier version "
                                        "(format 1, which could hold code) to the current data-only format")
@@ -283,6 +385,10 @@ def build_parser() -> argparse.ArgumentParser:
     from app.prepare_cmd import add_prepare_parser
 
     add_prepare_parser(sub)
+
+    from app.edit_cmd import add_edit_parser
+
+    add_edit_parser(sub)
     return p
 
 

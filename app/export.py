@@ -1,4 +1,6 @@
-"""Headless export of a trained avatar: 360° orbit videos, pose sequences and screenshots.
+"""Headless export of a trained avatar: 360° orbit videos, pose sequences (the video's, a novel
+one, or a motion file retargeted onto the avatar), screenshots, and the Gaussians themselves as
+3DGS ``.ply`` files (one pose, or one file per frame into a folder; ``reconstruct/ply.py``).
 
 Frames are drawn offscreen with ``SplatRenderer`` (EGL) and written by imageio: ``.mp4``
 (ffmpeg through imageio-ffmpeg, libx264, yuv420p: width and height must be even), ``.gif``
@@ -25,6 +27,7 @@ from reconstruct.atomic import atomic_output
 VIDEO_SUFFIXES = (".mp4", ".gif")
 IMAGE_SUFFIXES = (".png",)
 SUPPORTED_SUFFIXES = VIDEO_SUFFIXES + IMAGE_SUFFIXES
+PLY_SUFFIX = ".ply"
 
 
 # ----------------------------------------------------------------------------- destination checks
@@ -130,7 +133,7 @@ def orbit_cameras(snap, frames: int, width: int, height: int, elevation: float =
 
 
 def _even(x: float) -> int:
-    return max(2, 2 * int(round(x / 2.0)))
+    return max(2, 2 * round(x / 2.0))
 
 
 def _fit_camera(camera, size: int | None):
@@ -264,6 +267,24 @@ def plan_novel(avatar, out_path, name: str = "walk", *, frames: int = 30, size: 
     return ExportPlan(out, [cam] * len(poses), lambda i: avatar.snapshot_at_pose(poses[i], 0), fps, name)
 
 
+def plan_sequence(avatar, out_path, poses, *, fps: float, desc: str, size: int | None = 512,
+                  camera=None) -> ExportPlan:
+    """One frame per ``BodyPose`` of ``poses`` (poses of ``avatar.body`` in the scene's world),
+    seen from the video's first training camera (or ``camera``)."""
+    _check_video_settings(fps)
+    if not len(poses):
+        raise ValueError(f"{desc}: no poses to export")
+    cam = _fit_camera(camera if camera is not None else avatar.scene.frames[0].camera, size)
+    out = check_destination(out_path, suffixes=VIDEO_SUFFIXES, size=(cam.width, cam.height))
+    return ExportPlan(out, [cam] * len(poses), lambda i: avatar.snapshot_at_pose(poses[i], 0), float(fps), desc)
+
+
+def plan_motion(avatar, out_path, motion: MotionPoses, *, size: int | None = 512, camera=None) -> ExportPlan:
+    """A motion file retargeted onto the avatar (``motion_poses``), at its (resampled) frame rate."""
+    return plan_sequence(avatar, out_path, motion.poses, fps=motion.fps, desc=motion.path.name, size=size,
+                         camera=camera)
+
+
 def render_plan(plan: ExportPlan, *, mode="rgb", background=(0, 0, 0), progress: bool = True) -> Path:
     """Render ``plan`` offscreen (EGL) and write it atomically. Returns the path."""
     mode = _check_mode(mode)
@@ -275,6 +296,199 @@ def render_plan(plan: ExportPlan, *, mode="rgb", background=(0, 0, 0), progress:
 
         with atomic_output(plan.out) as tmp:
             write_frames(images(), tmp, plan.fps)
+    return plan.out
+
+
+# ----------------------------------------------------------------------------- motion files
+@dataclass(frozen=True)
+class MotionPoses:
+    """A motion file retargeted onto an avatar's body (``reconstruct.motion``): one ``BodyPose`` per
+    frame at ``fps``, placed on the video's first frame and grounded on the video's floor.
+    ``notes``: what the retargeting detected, assumed and dropped (show them to the user)."""
+
+    path: Path
+    poses: list
+    fps: float
+    notes: tuple[str, ...] = ()
+    dropped: tuple[str, ...] = ()
+    source_frames: int = 0
+    source_fps: float = 0.0
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+
+def check_motion_times(start: float | None, end: float | None) -> None:
+    """``start``/``end`` (seconds into the file) before anything is read."""
+    for name, v in (("start", start), ("end", end)):
+        if v is not None and not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"--{name} must be a non-negative number of seconds, found {v}")
+    if start is not None and end is not None and end <= start:
+        raise ValueError(f"--end {end:g} s must be after --start {start:g} s")
+
+
+def read_motion(path):
+    """``reconstruct.motion.load_motion``: a ``MotionClip``, or ``MotionFileError`` (a ValueError)
+    naming the file and what is wrong with it."""
+    from reconstruct.motion import load_motion
+
+    return load_motion(path)
+
+
+def retarget_motion(motion, body, scene, *, fps: float | None = None, start: float | None = None,
+                    end: float | None = None, loop: bool = False) -> MotionPoses:
+    """``motion`` (a file path or a ``MotionClip``) retargeted onto ``body`` (the avatar's), starting
+    where ``scene``'s first frame stands, the feet on the floor of the scene's poses, resampled to
+    ``fps`` (default: the scene's, the frame rate exports use)."""
+    from reconstruct.motion import MotionClip, retarget
+
+    clip = motion if isinstance(motion, MotionClip) else read_motion(motion)
+    fps = float(scene.fps if fps is None else fps)
+    _check_video_settings(fps)
+    check_motion_times(start, end)
+    try:
+        result = retarget(clip, body, fps=fps, start=start, end=end, loop=loop,
+                          base_pose=scene.frames[0].pose, floor_poses=[f.pose for f in scene.frames])
+    except ValueError as exc:
+        raise ValueError(f"{clip.source}: {exc}") from exc
+    if not result.poses:
+        raise ValueError(f"{clip.source}: no frames between start and end")
+    return MotionPoses(Path(clip.source), list(result.poses), float(result.fps), tuple(result.notes),
+                       tuple(result.dropped), clip.num_frames, float(clip.fps))
+
+
+def motion_poses(avatar, motion, *, fps: float | None = None, start: float | None = None,
+                 end: float | None = None, loop: bool = False) -> MotionPoses:
+    """``retarget_motion`` onto a ``TrainedAvatar``'s body and scene."""
+    return retarget_motion(motion, avatar.body, avatar.scene, fps=fps, start=start, end=end, loop=loop)
+
+
+# ----------------------------------------------------------------------------- .ply (3DGS)
+@dataclass
+class PlyPlan:
+    """What a ``.ply`` export writes: ``snapshot(i)`` for each of ``count`` frames, into the file
+    ``out`` (``sequence`` False, one frame) or into the folder ``out`` as ``frame_0000.ply`` ...
+    Building a plan checks the destination and settings and poses nothing."""
+
+    out: Path
+    count: int
+    snapshot: Callable[[int], object]
+    sequence: bool
+    desc: str
+
+    def __len__(self) -> int:
+        return self.count
+
+
+def check_ply_destination(out_path, *, sequence: bool, overwrite: bool = False) -> Path:
+    """A ``.ply`` file name in a writable folder, or (``sequence``) a new folder name there."""
+    out = Path(out_path)
+    if not sequence:
+        return check_destination(out, suffixes=(PLY_SUFFIX,))
+    if out.suffix.lower() == PLY_SUFFIX:
+        raise ValueError(f"{out}: a pose sequence is written as one .ply per frame into a folder; "
+                         f"give a folder name (without .ply)")
+    folder = out.parent if str(out.parent) else Path(".")
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{out}: the output folder {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"{out}: the output folder {folder} is not writable")
+    if out.exists() and not (overwrite and out.is_dir()):
+        what = "a file" if not out.is_dir() else "a folder (pass --overwrite to replace the sequence in it)"
+        raise ValueError(f"{out}: already exists and is {what}")
+    return out
+
+
+def plan_ply(avatar, out_path, *, frame: int | None = None, canonical: bool = False, novel: str | None = None,
+             frames: int = 30, motion: MotionPoses | None = None, scene=None, overwrite: bool = False) -> PlyPlan:
+    """The avatar's Gaussians: at video frame ``frame`` (default 0) or in the ``canonical`` space
+    (one file), or a sequence (one file per frame into a folder): a ``novel`` pose sequence of
+    ``frames`` frames, a retargeted ``motion``, or the poses of ``scene`` (the avatar's own or
+    another with the same body)."""
+    chosen = [k for k, v in (("frame", frame is not None), ("canonical", canonical), ("novel", novel),
+                             ("motion", motion is not None), ("poses", scene is not None)) if v]
+    if len(chosen) > 1:
+        raise ValueError(f".ply export: choose one of frame, canonical, novel, motion, poses; found {chosen}")
+    what = chosen[0] if chosen else "frame"
+    n = len(avatar.scene.frames)
+    if what == "frame":
+        f = 0 if frame is None else int(frame)
+        if not 0 <= f < n:
+            raise ValueError(f"frame {f} is out of range: the scene has {n} frames (0..{n - 1})")
+        out = check_ply_destination(out_path, sequence=False)
+        return PlyPlan(out, 1, lambda i: avatar.make_snapshot("observation", f), False, f"frame {f}")
+    if what == "canonical":
+        out = check_ply_destination(out_path, sequence=False)
+        return PlyPlan(out, 1, lambda i: avatar.make_snapshot("canonical", 0), False, "canonical")
+    out = check_ply_destination(out_path, sequence=True, overwrite=overwrite)
+    if what == "novel":
+        from reconstruct.body.novel_poses import NOVEL_POSES, novel_pose_sequence
+
+        if novel not in NOVEL_POSES:
+            raise ValueError(f"novel pose sequence {novel!r}: choose one of {', '.join(NOVEL_POSES)}")
+        if frames < 2:
+            raise ValueError(f"a novel pose sequence needs at least 2 frames, found {frames}")
+        poses = novel_pose_sequence(avatar.body, novel, frames, base=avatar.scene.frames[0].pose)
+        return PlyPlan(out, len(poses), lambda i: avatar.snapshot_at_pose(poses[i], 0), True, novel)
+    if what == "motion":
+        poses = motion.poses
+        return PlyPlan(out, len(poses), lambda i: avatar.snapshot_at_pose(poses[i], 0), True, motion.path.name)
+    own = scene is avatar.scene
+    if not own and scene.body != avatar.scene.body:
+        raise ValueError(f"scene {scene.name}: its body model differs from the one the avatar was trained on "
+                         f"({avatar.scene.name}); poses cannot be transferred")
+    if not scene.frames:
+        raise ValueError(f"scene {scene.name}: no frames to export")
+    frames_ = scene.frames
+
+    def snapshot(i):
+        return avatar.make_snapshot("observation", i) if own else avatar.snapshot_at_pose(frames_[i].pose, i)
+
+    return PlyPlan(out, len(frames_), snapshot, True, "poses")
+
+
+class _LazySnapshots:
+    """``plan.snapshot(i)`` for each frame, posed only when iterated (one at a time)."""
+
+    def __init__(self, plan: PlyPlan) -> None:
+        self.plan = plan
+
+    def __len__(self) -> int:
+        return len(self.plan)
+
+    def __iter__(self):
+        return (self.plan.snapshot(i) for i in range(len(self.plan)))
+
+
+def write_ply_plan(plan: PlyPlan, *, up: str = "y_down", sh_degree: int = 3, progress: bool | Callable = True,
+                   overwrite: bool = False) -> Path:
+    """Write ``plan`` (``reconstruct.ply``: atomically, a sequence all or nothing). ``progress``:
+    a tqdm bar (True), none (False), or a ``progress(done, total)`` callable. Returns ``plan.out``."""
+    from reconstruct.ply import UP_CHOICES, write_ply_sequence, write_snapshot_ply
+
+    if up not in UP_CHOICES:
+        raise ValueError(f"up must be one of {', '.join(UP_CHOICES)}, found {up!r}")
+    if sh_degree not in (0, 1, 2, 3):
+        raise ValueError(f"sh_degree must be 0, 1, 2 or 3, found {sh_degree}")
+    if not plan.sequence:
+        write_snapshot_ply(plan.out, plan.snapshot(0), up=up, sh_degree=sh_degree)
+        if callable(progress):
+            progress(1, 1)
+        return plan.out
+    bar = None
+    if callable(progress):
+        callback = progress
+    else:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(plan), desc=f"{plan.desc} .ply", unit="frame", disable=not progress)
+        callback = lambda done, total: bar.update(done - bar.n)
+    try:
+        write_ply_sequence(plan.out, _LazySnapshots(plan), progress=callback, overwrite=overwrite, up=up,
+                           sh_degree=sh_degree)
+    finally:
+        if bar is not None:
+            bar.close()
     return plan.out
 
 
@@ -307,6 +521,27 @@ def export_novel(avatar, out_path, name: str = "walk", *, frames: int = 30, size
     mode = _check_mode(mode)
     plan = plan_novel(avatar, out_path, name, frames=frames, size=size, fps=fps, camera=camera)
     return render_plan(plan, mode=mode, background=background, progress=progress)
+
+
+def export_motion(avatar, out_path, motion, *, fps: float | None = None, start: float | None = None,
+                  end: float | None = None, loop: bool = False, size: int | None = 512, camera=None, mode="rgb",
+                  background=(0, 0, 0), progress: bool = True) -> Path:
+    """A motion file (``.bvh``, SMPL-family ``.npz``; or ``MotionPoses`` already retargeted)
+    performed by the avatar, from the video's first training camera; see ``motion_poses``."""
+    mode = _check_mode(mode)
+    check_destination(out_path, suffixes=VIDEO_SUFFIXES)
+    if not isinstance(motion, MotionPoses):
+        motion = motion_poses(avatar, motion, fps=fps, start=start, end=end, loop=loop)
+    plan = plan_motion(avatar, out_path, motion, size=size, camera=camera)
+    return render_plan(plan, mode=mode, background=background, progress=progress)
+
+
+def export_ply(avatar, out_path, *, up: str = "y_down", sh_degree: int = 3, progress: bool = True,
+               overwrite: bool = False, **what) -> Path:
+    """The avatar's Gaussians as 3DGS ``.ply``: one file or a folder of frames; ``what`` as
+    ``plan_ply`` (frame=, canonical=, novel= and frames=, motion=, scene=)."""
+    plan = plan_ply(avatar, out_path, overwrite=overwrite, **what)
+    return write_ply_plan(plan, up=up, sh_degree=sh_degree, progress=progress, overwrite=overwrite)
 
 
 def export_screenshot(avatar, out_path, camera=None, *, frame_index: int = 0, size: int | None = None,

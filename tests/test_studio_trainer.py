@@ -119,6 +119,42 @@ def test_novel_pose_published_in_live_view(trainer):
     assert np.allclose(novel.scales, video.scales)
 
 
+def test_motion_clip_is_a_pose_sequence_of_the_live_view(trainer, tmp_path):
+    """A motion file retargeted onto the avatar is added as a named pose sequence: scrubbing it
+    publishes its poses (the arms of the T-posed first frame are wider than the lowered middle);
+    removing it falls back to the video's poses; built-in names and empty sequences are refused."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from motion_files import write_test_bvh
+
+    from app.export import retarget_motion
+
+    t = trainer.trainer
+    m = retarget_motion(write_test_bvh(tmp_path / "arms.bvh", frames=40), t.state.body, t.scene)
+    trainer.add_pose_sequence("motion:1", m.poses)
+    n = len(m.poses)
+    assert trainer.sequence_length("motion:1") == n and trainer.sequence_length("nothing") == 0
+    with pytest.raises(ValueError, match="built-in"):
+        trainer.add_pose_sequence("walk", m.poses)
+    with pytest.raises(ValueError, match="no poses"):
+        trainer.add_pose_sequence("motion:2", [])
+    trainer.pause(True)
+    trainer.start()
+    widths = {}
+    for k in (0, n // 2):
+        trainer.set_view(novel="motion:1", novel_index=k)
+        _wait(lambda k=k: trainer.published and trainer.published[0] == ("observation", 0, "motion:1", k),
+              what=f"motion frame {k}")
+        x = trainer.latest_snapshot().means[:, 0]
+        widths[k] = float(x.max() - x.min())
+    assert widths[0] > widths[n // 2] + 0.5, widths  # T-pose arms out, then down
+    trainer.remove_pose_sequence("motion:1")
+    _wait(lambda: trainer.published and trainer.published[0] == ("observation", 0, "", 0), what="video pose")
+    assert trainer.status().error is None
+
+
 def test_reopened_run_shows_its_logged_curves(tiny_scene, tiny_config, tmp_path):
     """The training panel's plots of a reopened run start from its metrics log, not empty."""
     from app.studio.trainer_thread import TrainerThread

@@ -12,6 +12,10 @@ Three threads take part:
   is what DESIGN.md warns against) renders at most ``frames_per_pump`` queued frames per GUI
   frame into an offscreen framebuffer with its own ``SplatRenderer`` and reads them back.
 
+``.ply`` exports (the current frame, the canonical space, or the Pose panel's sequence as a folder
+of frames) need no rendering: the worker thread writes them from the frozen copy
+(``app.export.write_ply_plan``: atomically, a sequence all or nothing; cancelling leaves nothing).
+
 ``ExportSettings.validate`` checks the destination before anything starts: an unwritable path is
 refused at once with a message, and nothing in the run folder is touched.
 """
@@ -27,8 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-KINDS = ("orbit", "poses", "walk", "arms_up")
-KIND_LABELS = {"orbit": "360° orbit", "poses": "video poses", "walk": "novel: walk cycle", "arms_up": "novel: arms up"}
+VIDEO_KINDS = ("orbit", "poses", "walk", "arms_up", "motion")
+PLY_KINDS = ("ply_frame", "ply_canonical", "ply_sequence")
+KINDS = VIDEO_KINDS + PLY_KINDS
+KIND_LABELS = {"orbit": "360° orbit", "poses": "video poses", "walk": "novel: walk cycle", "arms_up": "novel: arms up",
+               "motion": "motion file (Pose panel)", "ply_frame": ".ply: current frame",
+               "ply_canonical": ".ply: canonical space", "ply_sequence": ".ply: pose sequence (folder)"}
 FORMATS = (".mp4", ".gif")
 
 
@@ -40,14 +48,32 @@ class ExportSettings:
     fps: float = 30.0
     out: str = "exports/avatar.mp4"
     mode: str = "rgb"
-    frame_index: int = 0  # the pose the orbit shows
+    frame_index: int = 0  # the pose the orbit and the single .ply show
+    # the Pose panel's sequence (a .ply sequence holds it; "motion" videos play the loaded file)
+    sequence: str = "video"  # video, walk, arms_up or motion
+    motion_poses: tuple | None = None  # the loaded motion file's poses (BodyPose), if any
+    motion_name: str | None = None
+    motion_fps: float | None = None
+    up: str = "y_down"  # .ply frame (docs/ply.md)
+    overwrite: bool = False  # replace an existing .ply sequence folder
+
+    @property
+    def is_ply(self) -> bool:
+        return self.kind in PLY_KINDS
 
     def validate(self) -> Path:
-        from app.export import VIDEO_SUFFIXES, check_destination
+        from app.export import VIDEO_SUFFIXES, check_destination, check_ply_destination
 
         if self.kind not in KINDS:
             raise ValueError(f"unknown export kind {self.kind!r}; choose one of {', '.join(KINDS)}")
-        if self.frames < (1 if self.kind == "orbit" else 2) and self.kind != "poses":
+        needs_motion = self.kind == "motion" or (self.kind == "ply_sequence" and self.sequence == "motion")
+        if needs_motion and not self.motion_poses:
+            raise ValueError("no motion file is open: open one in the Pose panel first")
+        if self.is_ply:
+            if self.up not in ("y_down", "z_up"):
+                raise ValueError(f"up must be y_down or z_up, found {self.up!r}")
+            return check_ply_destination(self.out, sequence=self.kind == "ply_sequence", overwrite=self.overwrite)
+        if self.frames < (1 if self.kind == "orbit" else 2) and self.kind in ("orbit", "walk", "arms_up"):
             raise ValueError(f"{KIND_LABELS[self.kind]} needs more frames, found {self.frames}")
         if self.size < 2:
             raise ValueError(f"size must be at least 2 pixels, found {self.size}")
@@ -57,15 +83,35 @@ class ExportSettings:
         return check_destination(self.out, suffixes=VIDEO_SUFFIXES, size=size)
 
     def plan(self, avatar):
-        """The export plan for a ``TrainedAvatar``."""
-        from app.export import plan_novel, plan_orbit, plan_poses
+        """The export plan for a ``TrainedAvatar`` (an ``ExportPlan``, or a ``PlyPlan`` for .ply)."""
+        from app.export import plan_novel, plan_orbit, plan_poses, plan_sequence
 
+        if self.is_ply:
+            return self.ply_plan(avatar)
+        if self.kind == "motion":
+            # the poses were resampled to the scene's frame rate when the file was opened
+            return plan_sequence(avatar, self.out, list(self.motion_poses), fps=self.motion_fps or self.fps,
+                                 desc=self.motion_name or "motion", size=self.size)
         if self.kind == "orbit":
             return plan_orbit(avatar, self.out, frames=self.frames, size=self.size, fps=self.fps,
                               frame_index=self.frame_index)
         if self.kind == "poses":
             return plan_poses(avatar, self.out, size=self.size, fps=self.fps)
         return plan_novel(avatar, self.out, self.kind, frames=self.frames, size=self.size, fps=self.fps)
+
+    def ply_plan(self, avatar):
+        from app.export import MotionPoses, plan_ply
+
+        if self.kind == "ply_frame":
+            return plan_ply(avatar, self.out, frame=self.frame_index)
+        if self.kind == "ply_canonical":
+            return plan_ply(avatar, self.out, canonical=True)
+        if self.sequence == "motion":
+            motion = MotionPoses(Path(self.motion_name or "motion"), list(self.motion_poses), self.motion_fps or self.fps)
+            return plan_ply(avatar, self.out, motion=motion, overwrite=self.overwrite)
+        if self.sequence in ("walk", "arms_up"):
+            return plan_ply(avatar, self.out, novel=self.sequence, frames=self.frames, overwrite=self.overwrite)
+        return plan_ply(avatar, self.out, scene=avatar.scene, overwrite=self.overwrite)
 
 
 @dataclass
@@ -129,6 +175,9 @@ class ExportJob:
             frozen = self._future.result(timeout=300)
             plan = self.settings.plan(frozen)
             self.total = len(plan)
+            if self.settings.is_ply:
+                self._write_ply(plan)
+                return
 
             def images():
                 for i, cam in enumerate(plan.cameras):
@@ -150,6 +199,21 @@ class ExportJob:
             traceback.print_exc()
         finally:
             self.finished_at = time.perf_counter()
+
+    def _write_ply(self, plan) -> None:
+        """A .ply plan: written here (no rendering), the progress after each frame; a cancel stops
+        it before the next frame and nothing is left behind."""
+        from app.export import write_ply_plan
+
+        def progress(done, total):
+            self.written = done
+            if self._cancel.is_set() and done < len(plan):
+                raise _Cancelled()
+
+        if self._cancel.is_set():
+            raise _Cancelled()
+        write_ply_plan(plan, up=self.settings.up, progress=progress, overwrite=self.settings.overwrite)
+        self.result = plan.out
 
     def _put(self, q: queue.Queue, item) -> None:
         while True:

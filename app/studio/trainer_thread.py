@@ -119,6 +119,8 @@ class TrainerThread:
         self._calls: queue.SimpleQueue = queue.SimpleQueue()
         self.novel_frames = novel_frames  # length of the novel pose sequences shown in the live view
         self._novel_cache: dict[str, list] = {}
+        self._sequences: dict[str, list] = {}  # added pose sequences (motion files), by name
+        self._sequences_lock = threading.Lock()
         self._status = self._make_status()
         n = len(trainer.scene.frames)
         self.controls.update(frame_index=min(max(0, self.controls.get().frame_index), n - 1))
@@ -143,8 +145,38 @@ class TrainerThread:
         self.controls.update(stage2=dict(settings), stage2_version=v)
 
     def set_view(self, **kw) -> None:
-        """What the live snapshot shows: ``space``, ``frame_index``, ``novel``, ``novel_index``."""
+        """What the live snapshot shows: ``space``, ``frame_index``, ``novel`` (a pose sequence's
+        name: a built-in novel sequence or one added with ``add_pose_sequence``; "" for the video's
+        poses), ``novel_index``."""
         self.controls.update(**kw)
+
+    def add_pose_sequence(self, key: str, poses) -> None:
+        """Make ``poses`` (``BodyPose``s of the avatar's body in the scene's world, e.g. a motion
+        file retargeted by ``reconstruct.motion``) a pose sequence the live view can show as
+        ``set_view(novel=key, novel_index=i)``. A built-in name cannot be replaced."""
+        from reconstruct.body.novel_poses import NOVEL_POSES
+
+        poses = list(poses)
+        if not key or key in NOVEL_POSES:
+            raise ValueError(f"pose sequence name {key!r}: empty or a built-in sequence's")
+        if not poses:
+            raise ValueError(f"pose sequence {key!r}: no poses")
+        with self._sequences_lock:
+            self._sequences[key] = poses
+
+    def remove_pose_sequence(self, key: str) -> None:
+        """Forget a sequence added with ``add_pose_sequence`` (the view falls back to the video's poses)."""
+        with self._sequences_lock:
+            self._sequences.pop(key, None)
+
+    def sequence_length(self, key: str) -> int:
+        """Frames of the pose sequence ``key`` (0 when there is none by that name)."""
+        from reconstruct.body.novel_poses import NOVEL_POSES
+
+        with self._sequences_lock:
+            if key in self._sequences:
+                return len(self._sequences[key])
+        return self.novel_frames if key in NOVEL_POSES else 0
 
     # ----- what the GUI reads ---------------------------------------------------------------
     def status(self) -> TrainerStatus:
@@ -264,10 +296,17 @@ class TrainerThread:
     def novel_length(self) -> int:
         return self.novel_frames
 
-    def _novel_poses(self, name: str) -> list:
+    def _novel_poses(self, name: str) -> list | None:
+        """The poses of the sequence ``name``: an added one, or a built-in novel sequence (made once);
+        None when there is no sequence by that name (e.g. just removed)."""
+        with self._sequences_lock:
+            if name in self._sequences:
+                return self._sequences[name]
         if name not in self._novel_cache:
-            from reconstruct.body.novel_poses import novel_pose_sequence
+            from reconstruct.body.novel_poses import NOVEL_POSES, novel_pose_sequence
 
+            if name not in NOVEL_POSES:
+                return None
             t = self.trainer
             self._novel_cache[name] = novel_pose_sequence(t.state.body, name, self.novel_frames,
                                                           base=t.scene.frames[0].pose)
@@ -275,16 +314,18 @@ class TrainerThread:
 
     def _view_key(self, c: Controls) -> tuple:
         frame = min(max(0, int(c.frame_index)), len(self.trainer.scene.frames) - 1)
-        if c.novel:
-            return ("observation", frame, c.novel, int(c.novel_index) % self.novel_frames)
+        n = self.sequence_length(c.novel) if c.novel else 0
+        if n:
+            return ("observation", frame, c.novel, int(c.novel_index) % n)
         return (c.space, frame, "", 0)
 
     def _publish(self, c: Controls) -> None:
         key = self._view_key(c)
         space, frame, novel, k = key
         t = self.trainer
-        if novel:
-            t.snapshots.publish(t.avatar().snapshot_at_pose(self._novel_poses(novel)[k], frame))
+        poses = self._novel_poses(novel) if novel else None
+        if poses:
+            t.snapshots.publish(t.avatar().snapshot_at_pose(poses[k % len(poses)], frame))
         else:
             t.publish(space, frame)
         self.published = (key, t.step_count)

@@ -25,6 +25,7 @@ import time
 import traceback
 import warnings
 from collections.abc import Callable
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,8 @@ from renderer.render_modes import RenderMode
 
 from . import panels
 from .export_job import ExportJob, ExportPanelState
+from .footage import FootageController
+from .layout import STUDIO_PANELS, draw_panels
 from .pacing import FramePacer
 from .panels.stage2 import default_settings
 from .trainer_thread import TrainerThread
@@ -91,19 +94,22 @@ class StudioApp:
     """One studio window: the view state, the renderer and the panels' actions. ``script``
     callbacks of ``run_studio`` get this object."""
 
-    def __init__(self, window, ctx, trainer: TrainerThread, pacer: FramePacer | None = None) -> None:
+    def __init__(self, window, ctx, trainer: TrainerThread, pacer: FramePacer | None = None, run_lock=None) -> None:
         from renderer.orbit_camera import OrbitCamera
         from renderer.splat_renderer import SplatRenderer
 
         self.window = window
         self.ctx = ctx
         self.trainer = trainer
+        self.run_lock = run_lock  # the run folder's lock while the window trains into it
         self.pacer = pacer or FramePacer()
         self.scene = trainer.trainer.scene
         self.background = tuple(float(c) for c in trainer.trainer.config.background)
         self.renderer = SplatRenderer(ctx, target_dtype="f4")
         self.orbit = OrbitCamera()
         self.orbit.snap_to(self.scene.frames[0].camera)
+        self.footage = FootageController(self)
+        self._textures: dict[str, object] = {}
         self._framed = False
         self.view = ViewState()
         self._play_clock = time.perf_counter()
@@ -123,6 +129,9 @@ class StudioApp:
         self.trainer.set_stage2_settings(self.stage2_settings)
         self.export = ExportPanelState()
         self.saved_on_close: str | None = None
+        self._beside_key = None
+        self._beside_snap = None
+        self._frame_beside = False
 
     # ----- what scripts and tests read -------------------------------------------------------
     @property
@@ -138,11 +147,64 @@ class StudioApp:
 
     @property
     def num_pose_frames(self) -> int:
-        return len(self.scene.frames) if self.view.pose_source == "video" else self.trainer.novel_length
+        key = self.sequence_key
+        return self.trainer.sequence_length(key) if key else len(self.scene.frames)
+
+    @property
+    def sequence_key(self) -> str:
+        """The trainer thread's name of the pose sequence shown ("" for the video's poses)."""
+        source = self.view.pose_source
+        if source == "video":
+            return ""
+        if source == "motion":
+            loaded = self.view.motion.loaded
+            return loaded.key if loaded is not None else ""
+        return source
+
+    @property
+    def pose_fps(self) -> float:
+        """Frame rate of what the Pose panel plays (a motion file is resampled to the scene's)."""
+        loaded = self.view.motion.loaded
+        return loaded.fps if self.view.pose_source == "motion" and loaded is not None else float(self.scene.fps)
 
     @property
     def exporting(self) -> bool:
         return self.export.job is not None and not self.export.job.done
+
+    @property
+    def busy(self) -> bool:
+        """Something moves without input: playback, an export, a motion file being read, footage
+        being prepared."""
+        return (self.view.playing or self.exporting or self.view.motion.loading or self.view.beside.loading
+                or self.footage.busy)
+
+    def attach_trainer(self, trainer, run_folder=None, run_lock=None) -> None:
+        """Show and train ``trainer`` from now on (the footage panel's "Train on it": the previous
+        trainer thread was stopped and its lock released off the GL thread)."""
+        thread = TrainerThread(trainer, run_folder=run_folder, publish_every=self.trainer.publish_every)
+        self.trainer, self.run_lock = thread, run_lock
+        self.scene = trainer.scene
+        self.background = tuple(float(c) for c in trainer.config.background)
+        self.view = ViewState()
+        self.cache.clear()
+        self._framed = False
+        self._gt_key = None
+        self.orbit.snap_to(self.scene.frames[0].camera)
+        thread.set_stage2_settings(self.stage2_settings)
+        thread.start()
+
+    def texture(self, path: str):
+        """A GL texture of the image at ``path`` (read once; None when unreadable)."""
+        if path not in self._textures:
+            try:
+                import imageio.v3 as iio
+
+                rgb = _to_rgb8(iio.imread(path))
+                tex = self.ctx.texture((rgb.shape[1], rgb.shape[0]), 3, rgb.tobytes())
+            except (OSError, ValueError):
+                tex = None
+            self._textures[path] = tex
+        return self._textures[path]
 
     # ----- actions (the panels call these; so may scripts) -------------------------------------
     def pause(self, paused: bool = True) -> None:
@@ -167,8 +229,8 @@ class StudioApp:
 
     def _push_view(self) -> None:
         v = self.view
-        self.trainer.set_view(space=v.space, frame_index=v.frame_index,
-                              novel="" if v.pose_source == "video" else v.pose_source, novel_index=v.novel_index)
+        self.trainer.set_view(space=v.space, frame_index=v.frame_index, novel=self.sequence_key,
+                              novel_index=v.novel_index)
 
     def set_space(self, space: str) -> None:
         if space not in ("observation", "canonical"):
@@ -184,6 +246,9 @@ class StudioApp:
     def set_pose_source(self, source: str) -> None:
         if source not in POSE_SOURCES:
             raise ValueError(f"unknown pose source {source!r}; choose one of {POSE_SOURCES}")
+        if source == "motion" and self.view.motion.loaded is None:
+            self.view.motion.message = "no motion file open yet: type its path below and press Open"
+            return
         self.view.pose_source = source
         self.view.novel_index = 0
         if source != "video":
@@ -199,6 +264,46 @@ class StudioApp:
 
     def toggle_play(self) -> None:
         self.view.playing = not self.view.playing
+
+    def open_motion(self, path=None, loop: bool | None = None) -> bool:
+        """Read a motion file (``path``, default the Pose panel's field) and retarget it onto the
+        avatar in a background thread; when it is ready (``poll_motion``) the live view shows it.
+        A failure is shown in the Pose panel; the motion shown before stays. Returns whether a load
+        started."""
+        from .motion_source import start_motion_load
+
+        m = self.view.motion
+        if path is not None:
+            m.path = str(path)
+        if loop is not None:
+            m.loop = bool(loop)
+        if m.loading:
+            m.message = "a motion file is being read; wait for it"
+            return False
+        start_motion_load(m, self.trainer.trainer.state.body, self.scene)
+        return True
+
+    def poll_motion(self) -> None:
+        """GL thread, once a frame: take a finished motion load (never waits)."""
+        m = self.view.motion
+        job = m.job
+        if job is None or not job.done:
+            return
+        m.job = None
+        if job.error is not None:
+            m.message = f"could not open the motion file: {job.error}"
+            print(f"wonderhuman-studio: {m.message}", file=sys.stderr)
+            return
+        loaded, previous = job.result, m.loaded
+        self.trainer.add_pose_sequence(loaded.key, loaded.poses)
+        m.loaded, m.message = loaded, None
+        self.view.pose_source = "motion"
+        self.view.space = "observation"
+        self.view.novel_index = 0
+        self.view.gt_view = None
+        self._push_view()
+        if previous is not None:
+            self.trainer.remove_pose_sequence(previous.key)
 
     def snap_to_training_camera(self) -> None:
         self.view.gt_view = None
@@ -240,6 +345,11 @@ class StudioApp:
         e = ex.settings
         e.mode = self.view.mode.value
         e.frame_index = self.view.frame_index
+        e.sequence = self.view.pose_source  # what a .ply sequence holds: the Pose panel's poses
+        loaded = self.view.motion.loaded
+        e.motion_poses = loaded.poses if loaded is not None else None
+        e.motion_name = loaded.name if loaded is not None else None
+        e.motion_fps = loaded.fps if loaded is not None else None
         try:
             e.validate()
         except (OSError, ValueError) as exc:
@@ -255,6 +365,47 @@ class StudioApp:
         if self.export.job is not None:
             self.export.job.cancel()
 
+    def open_beside_ply(self, path=None) -> bool:
+        """Read a 3DGS .ply (``path``, default the Beside panel's field) in the background and draw
+        it beside the live avatar when read; a file that cannot be read is a message in the panel."""
+        f = self.view.beside
+        if f.loading:
+            f.message = "a file is being read; wait for it"
+            return False
+        f.start(path)
+        return True
+
+    def clear_beside_ply(self) -> None:
+        self.view.beside.loaded = None
+        self.view.beside.message = None
+
+    def poll_beside(self) -> None:
+        f = self.view.beside
+        job = f.job
+        if job is None or not job.done:
+            return
+        f.job = None
+        if job.error is not None:
+            f.message = f"could not open the .ply: {job.error}"
+            print(f"wonderhuman-studio: {f.message}", file=sys.stderr)
+            return
+        f.loaded, f.message = job.result, None
+        self.view.show_beside = True
+        self._frame_beside = True  # frame the avatar and the file together on the next draw
+
+    def drawn_snapshot(self):
+        """What the view draws: the latest snapshot, with the Beside panel's .ply next to it."""
+        from .ply_source import place_beside
+
+        snap = self.latest_snapshot()
+        other = self.view.beside.loaded
+        if other is None or not self.view.show_beside:
+            return snap
+        key = (id(snap), snap.version, id(other))
+        if self._beside_key != key:
+            self._beside_key, self._beside_snap = key, place_beside(snap, other.snapshot)
+        return self._beside_snap
+
     def close(self) -> None:
         self.should_close = True
 
@@ -269,13 +420,15 @@ class StudioApp:
                                    history=self.trainer.history, history_len=self.trainer.history_len,
                                    stage2_settings=self.stage2_settings, export=self.export,
                                    num_pose_frames=self.num_pose_frames, fps=self.fps, cache=self.cache,
-                                   mark=self.mark)
+                                   mark=self.mark, footage=self.footage, texture=self.texture)
 
     def change_key(self) -> tuple:
         """What an idle window would show differently: new training values, snapshot, messages."""
         st = self.status
+        m, b = self.view.motion, self.view.beside
         return (self.trainer.history_len, self.latest_snapshot().version, st.stage, st.error, st.stage2_message,
-                st.last_saved, st.paused)
+                st.last_saved, st.paused, m.loading, m.message, m.loaded is not None and m.loaded.key, b.loading,
+                b.message, id(b.loaded), self.view.show_beside)
 
     def pump_export(self) -> None:
         job = self.export.job
@@ -309,7 +462,7 @@ class StudioApp:
         if not self.view.playing:
             self._play_clock = now
             return
-        period = 1.0 / max(1e-3, float(self.scene.fps))
+        period = 1.0 / max(1e-3, self.pose_fps)
         if now - self._play_clock >= period:
             self._play_clock = now
             current = self.view.frame_index if self.view.pose_source == "video" else self.view.novel_index
@@ -373,7 +526,10 @@ class StudioApp:
         fw, fh, vw, vh = self.view_size()
         if fw <= 0 or fh <= 0:
             return
-        snap = self.latest_snapshot()
+        snap = self.drawn_snapshot()
+        if self._frame_beside and len(snap):
+            self.orbit.look_at_bounds(snap.means)
+            self._frame_beside = False
         if not self._framed and len(snap):
             self.orbit.snap_to(self.scene.frames[0].camera, pivot=snap.means.mean(0)) if snap.space == "observation" \
                 else self.orbit.look_at_bounds(snap.means)
@@ -405,10 +561,13 @@ class StudioApp:
         imgui.new_frame()
         if script is not None:
             script(self)
+        self.poll_motion()
+        self.poll_beside()
+        self.footage.poll()
         self.handle_input()
         self.advance_playback()
         if self.view.show_gui:
-            panels.draw_panels(self.panel_context())
+            draw_panels(self.panel_context(), STUDIO_PANELS)
         self.draw_ground_truth()
         imgui.render()
         draw_data = imgui.get_draw_data()
@@ -459,6 +618,9 @@ class StudioApp:
             self._fbo.release()
         if self._gt_tex is not None:
             self._gt_tex.release()
+        for tex in self._textures.values():
+            if tex is not None:
+                tex.release()
         self.renderer.release()
 
 
@@ -552,6 +714,39 @@ def _open_trainer(scene_spec: str, run_dir, config, progress: bool):
         raise
 
 
+@contextmanager
+def gui_window(size=(1280, 800), pacer: FramePacer | None = None, title: str = "WonderHuman Studio"):
+    """The window (its GLX context first, before anything could make an EGL one), a moderngl context
+    on it, imgui + implot with their glfw/opengl3 backends; all torn down on exit. ``pacer`` watches
+    the window's input. Yields ``(window, ctx)``. Raises NoDisplayError without a display."""
+    import moderngl
+
+    win = open_window(*size, title=title)
+    imgui_ready = False
+    try:
+        ctx = moderngl.create_context()
+        imgui.create_context()
+        implot.create_context()
+        io = imgui.get_io()
+        io.set_ini_filename("")
+        imgui.style_colors_dark()
+        _load_font(io)
+        if pacer is not None:
+            pacer.watch(glfw, win)  # before imgui's backend, which chains these callbacks
+        imgui.backends.glfw_init_for_opengl(ctypes.cast(win, ctypes.c_void_p).value, True)
+        imgui.backends.opengl3_init("#version 330")
+        imgui_ready = True
+        yield win, ctx
+    finally:
+        if imgui_ready:
+            imgui.backends.opengl3_shutdown()
+            imgui.backends.glfw_shutdown()
+            implot.destroy_context()
+            imgui.destroy_context()
+        glfw.destroy_window(win)
+        glfw.terminate()
+
+
 def run_studio(scene_spec: str, run_dir=None, *, config=None, size=(1280, 800), max_frames: int | None = None,
                script: Callable[[StudioApp], None] | None = None, screenshot=None, publish_every: int = 5,
                progress: bool = True, max_fps: float = 30.0, idle_fps: float = 5.0, active_s: float = 1.5,
@@ -561,71 +756,51 @@ def run_studio(scene_spec: str, run_dir=None, *, config=None, size=(1280, 800), 
     ``app.close()``; closing saves a checkpoint first when there is a run folder. ``screenshot``:
     PNG of the last frame. Returns 0, or 2 when the scene or run could not be opened (the error is
     shown in the window and on stderr). Raises NoDisplayError without a display."""
-    import moderngl
-
     from reconstruct.run_folder import RunLockedError
 
-    win = open_window(*size)  # the window's GLX context first, before anything could make an EGL one
     pacer = FramePacer(max_fps=max_fps, idle_fps=idle_fps, active_s=active_s, idle_refresh_s=idle_refresh_s)
-    imgui_ready = False
-    thread = app = lock = None
-    try:
-        ctx = moderngl.create_context()
-        imgui.create_context()
-        implot.create_context()
-        io = imgui.get_io()
-        io.set_ini_filename("")
-        imgui.style_colors_dark()
-        _load_font(io)
-        pacer.watch(glfw, win)  # before imgui's backend, which chains these callbacks
-        imgui.backends.glfw_init_for_opengl(ctypes.cast(win, ctypes.c_void_p).value, True)
-        imgui.backends.opengl3_init("#version 330")
-        imgui_ready = True
+    with gui_window(size, pacer) as (win, ctx):
+        thread = app = lock = None
         try:
-            trainer, run, lock = _open_trainer(scene_spec, run_dir, config, progress)
-        except Exception as exc:  # noqa: BLE001 -- any failure to open is shown, not a crash
-            if isinstance(exc, RunLockedError):
-                what, message = "the run folder", str(exc)
-                texts = {"title": "The run folder is in use",
-                         "hint": "Close the other studio or training process, or open another run folder (--run RUN)."}
-            else:
-                what, message, texts = "the scene", f"{scene_spec}: {type(exc).__name__}: {exc}", {}
-            print(f"wonderhuman-studio: could not open {what} {message}", file=sys.stderr)
-            if not isinstance(exc, (ValueError, OSError, RuntimeError, KeyError)):
-                traceback.print_exc()
-            _error_loop(win, ctx, message, max_frames=max_frames, screenshot=screenshot, max_fps=max_fps, **texts)
-            return SCENE_ERROR_RC
-        thread = TrainerThread(trainer, run_folder=run, publish_every=publish_every)
-        app = StudioApp(win, ctx, thread, pacer)
-        thread.start()
-        if gui_nice:
-            _lower_this_thread(gui_nice)  # after the trainer thread started: it keeps its priority
-        while not glfw.window_should_close(win) and not app.should_close:
-            busy = app.view.playing or app.exporting
-            if not pacer.wait(glfw.wait_events_timeout, glfw.poll_events, busy=busy, changes=app.change_key(),
-                              always=script is not None):
-                continue
-            last = max_frames is not None and app.frame_count + 1 >= max_frames
-            app.frame(script, screenshot=screenshot, last=last, rects_path=rects_path)
-            if last:
-                break
-        return 0
-    finally:
-        if thread is not None:
-            running = thread.running and not thread.trainer.done
-            thread.stop(save=True)  # a checkpoint first when there is a run folder
-            if thread.last_saved and app is not None:
-                app.saved_on_close = thread.last_saved
-                print(f"wonderhuman-studio: {'training stopped; ' if running else ''}saved {thread.last_saved}",
-                      file=sys.stderr)
-        if lock is not None:
-            lock.release()
-        if app is not None:
-            app.release()
-        if imgui_ready:
-            imgui.backends.opengl3_shutdown()
-            imgui.backends.glfw_shutdown()
-            implot.destroy_context()
-            imgui.destroy_context()
-        glfw.destroy_window(win)
-        glfw.terminate()
+            try:
+                trainer, run, lock = _open_trainer(scene_spec, run_dir, config, progress)
+            except Exception as exc:  # noqa: BLE001 -- any failure to open is shown, not a crash
+                if isinstance(exc, RunLockedError):
+                    what, message = "the run folder", str(exc)
+                    texts = {"title": "The run folder is in use",
+                             "hint": "Close the other studio or training process, or open another run folder (--run RUN)."}
+                else:
+                    what, message, texts = "the scene", f"{scene_spec}: {type(exc).__name__}: {exc}", {}
+                print(f"wonderhuman-studio: could not open {what} {message}", file=sys.stderr)
+                if not isinstance(exc, (ValueError, OSError, RuntimeError, KeyError)):
+                    traceback.print_exc()
+                _error_loop(win, ctx, message, max_frames=max_frames, screenshot=screenshot, max_fps=max_fps, **texts)
+                return SCENE_ERROR_RC
+            thread = TrainerThread(trainer, run_folder=run, publish_every=publish_every)
+            app = StudioApp(win, ctx, thread, pacer, run_lock=lock)
+            thread.start()
+            if gui_nice:
+                _lower_this_thread(gui_nice)  # after the trainer thread started: it keeps its priority
+            while not glfw.window_should_close(win) and not app.should_close:
+                if not pacer.wait(glfw.wait_events_timeout, glfw.poll_events, busy=app.busy, changes=app.change_key(),
+                                  always=script is not None):
+                    continue
+                last = max_frames is not None and app.frame_count + 1 >= max_frames
+                app.frame(script, screenshot=screenshot, last=last, rects_path=rects_path)
+                if last:
+                    break
+            return 0
+        finally:
+            if app is not None:  # the footage panel may have switched to another trainer and run folder
+                thread, lock = app.trainer, app.run_lock
+            if thread is not None:
+                running = thread.running and not thread.trainer.done
+                thread.stop(save=True)  # a checkpoint first when there is a run folder
+                if thread.last_saved and app is not None:
+                    app.saved_on_close = thread.last_saved
+                    print(f"wonderhuman-studio: {'training stopped; ' if running else ''}saved {thread.last_saved}",
+                          file=sys.stderr)
+            if lock is not None:
+                lock.release()
+            if app is not None:
+                app.release()

@@ -47,3 +47,5 @@ class PanelContext:
     fps: float = 0.0
     cache: dict = field(default_factory=dict)  # per-panel caches (plot arrays, curves)
     mark: Callable[[str], None] = lambda name: None  # records the last widget's rectangle (GUI tests)
+    footage: object | None = None  # app.studio.footage.FootageController (own video or photo -> scene -> training)
+    texture: Callable[[str], object | None] = lambda path: None  # a GL texture of an image file (GL thread)

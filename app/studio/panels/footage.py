@@ -1,0 +1,54 @@
+"""Footage panel: your own video, image or folder of images -> prepare (progress, report and
+picture) -> train on it."""
+
+from __future__ import annotations
+
+import time
+
+from imgui_bundle import imgui
+
+from .common import error_text, wrapped_hint
+from .context import PanelContext
+
+
+def draw(ui: PanelContext) -> None:
+    fc = ui.footage
+    if fc is None:
+        return
+    st = fc.state
+    wrapped_hint("A video, an image (jpg/png/webp) or a folder of images of one person, front view, whole body.")
+    ch, text = imgui.input_text("file or folder", st.source)
+    ui.mark("footage_path")
+    if ch:
+        st.source = text
+    ch, v = imgui.input_int("person (0 = auto)", st.person, 1, 1)
+    if ch:
+        st.person = max(0, v)
+    imgui.begin_disabled(fc.busy)
+    if imgui.button("Prepare"):
+        fc.prepare()
+    ui.mark("footage_prepare")
+    imgui.same_line()
+    imgui.begin_disabled(st.scene_folder is None)
+    if imgui.button("Train on it"):
+        fc.train_on()
+    ui.mark("footage_train")
+    imgui.end_disabled()
+    imgui.end_disabled()
+    if fc.busy:
+        phase = (time.perf_counter() * 0.5) % 1.0  # prepare has no step count: an animated bar
+        imgui.progress_bar(-phase, imgui.ImVec2(-1, 0), "preparing..." if fc.prepare_job else "switching...")
+    for line in st.log_lines()[-5:]:
+        imgui.text_disabled(line[-70:])
+    if st.report_text:
+        if imgui.tree_node("report"):
+            imgui.text_unformatted(st.report_text)
+            imgui.tree_pop()
+    if st.report_image:
+        tex = ui.texture(st.report_image)
+        if tex is not None:
+            w = imgui.get_content_region_avail().x
+            tw, th = tex.size
+            imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w, w * th / max(tw, 1)))
+    if st.message:
+        error_text(st.message)
