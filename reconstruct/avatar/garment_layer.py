@@ -1,0 +1,269 @@
+"""PROTOTYPE (not wired into AvatarModel): a garment layer of Gaussians for loose clothes.
+
+The avatar's Gaussians are one per body texel, each with its texel's skinning weights and a bounded
+offset: cloth that spans the gap between the legs or stands off the body has no Gaussians of its
+own, and Gaussians pulled there from the inner thighs would be torn apart by the legs' skinning.
+This layer adds Gaussians where the silhouette says there is something:
+
+* geometry: a tube of Gaussians on a regular grid (rows down from the top ring, columns round),
+  swept round the hips-and-legs region of the canonical body: at each height the ring follows the
+  support function of the body slice (torso above the hips; torso, thighs and shins below them;
+  ``h(theta) = max_p (p - c) . d(theta)``: the convex envelope, so one ring spans both legs) plus a
+  standoff growing from the top to the hem, never narrowing below the hips (cloth hangs);
+* skinning: each Gaussian takes a Gaussian-weighted average of the weights of the nearest body
+  points (relative to the nearest), then the weights are diffused over the grid (a Gaussian filter,
+  wrapping round), so the cloth between the legs blends the two legs' bones and the layer moves as
+  one piece: continuous weights cannot open a gap, only stretch the cloth (``max_neighbour_stretch``);
+* the volume hint: ``volume_hint_from_masks`` reads the hem height and the flare from the
+  front-view frames: image rows where the posed body's own silhouette leaves a gap between the
+  projected leg axes and the mask covers that gap are cloth; the lowest such row is the hem; the
+  mask's width beyond the body's there is the flare (the top is the waist). Tight clothing gives
+  no hint (None): no layer.
+
+``GarmentLayer.gaussians`` poses the layer into PosedGaussians (renderable with
+reconstruct.train.render.render_avatar) with given colours / opacities; in a trained avatar those
+would come from a feature map over the layer's grid decoded like the body's (see
+docs/loose_clothing.md for the wiring this needs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.ndimage import gaussian_filter, gaussian_filter1d
+from scipy.spatial import cKDTree
+
+from ..body.base import BodyModel
+from ..body.lbs import Skinning
+from ..body.parts import PART_INDEX
+from ..body.pose import BodyPose
+
+_COVERED = ("torso", "thigh.L", "thigh.R", "shin.L", "shin.R")
+
+
+@dataclass(frozen=True)
+class VolumeHint:
+    """Where the garment layer goes, in the body's canonical heights (metres)."""
+
+    top_z: float
+    hem_z: float
+    standoff_top: float = 0.012
+    standoff_hem: float = 0.06
+
+    def __post_init__(self) -> None:
+        if not self.hem_z < self.top_z:
+            raise ValueError(f"volume hint: hem ({self.hem_z:.3f} m) must be below the top ({self.top_z:.3f} m)")
+        if self.standoff_top < 0 or self.standoff_hem < 0:
+            raise ValueError("volume hint: standoffs must be >= 0")
+
+
+@dataclass
+class GarmentLayer:
+    """Canonical Gaussians of the layer on a (rows, cols) grid (row-major; columns wrap round)."""
+
+    positions: torch.Tensor  # (N,3) float32 canonical centres
+    normals: torch.Tensor  # (N,3) outward
+    tangents: torch.Tensor  # (N,3) round the tube
+    weights: torch.Tensor  # (N,J) skinning weights (sum 1)
+    spacing: torch.Tensor  # (N,) metres: distance to the grid neighbours (initial scale)
+    grid_shape: tuple[int, int]
+    hint: VolumeHint
+
+    @property
+    def num_gaussians(self) -> int:
+        return int(self.positions.shape[0])
+
+    def edges(self) -> np.ndarray:
+        """(E,2) grid neighbours: down each column and round each ring (wrapping)."""
+        R, C = self.grid_shape
+        idx = np.arange(R * C).reshape(R, C)
+        down = np.stack([idx[:-1].ravel(), idx[1:].ravel()], 1)
+        side = np.stack([idx.ravel(), np.roll(idx, -1, axis=1).ravel()], 1)
+        return np.concatenate([down, side])
+
+    def skinning(self, body: BodyModel) -> Skinning:
+        return body.skinning(self.weights.to(torch.float64))
+
+    def posed(self, body: BodyModel, pose: BodyPose) -> tuple[torch.Tensor, torch.Tensor]:
+        """(N,3) centres and (N,3) normals in ``pose`` (float64)."""
+        means, normals = self.skinning(body)(body.bone_transforms(pose), self.positions.to(torch.float64),
+                                             self.normals.to(torch.float64))
+        return means, normals
+
+    def gaussians(self, body: BodyModel, pose: BodyPose, colors: torch.Tensor | None = None,
+                  opacity: float = 0.95, scale_factor: float = 0.75):
+        """The layer posed as PosedGaussians (flat discs in the cloth's tangent plane, sized by the
+        grid spacing), grey unless ``colors`` (N,3) are given."""
+        from .model import PosedGaussians, frame_quaternions
+
+        means, normals = self.posed(body, pose)
+        M = self.skinning(body).matrices(body.bone_transforms(pose))
+        tangents = (M[:, :3, :3] @ self.tangents.to(torch.float64)[..., None])[..., 0]
+        quats = frame_quaternions(tangents, normals)
+        s = self.spacing.to(torch.float64) * scale_factor
+        scales = torch.stack([s, s, 0.1 * s], 1)
+        n = self.num_gaussians
+        col = torch.full((n, 3), 0.6, dtype=torch.float64) if colors is None else colors.to(torch.float64)
+        f32 = lambda t: t.to(torch.float32).contiguous()
+        return PosedGaussians(f32(means), f32(normals), f32(col), f32(scales), f32(quats),
+                              torch.full((n,), float(opacity)))
+
+    def max_neighbour_stretch(self, body: BodyModel, poses) -> float:
+        """The largest ratio posed / canonical distance between grid neighbours over ``poses``."""
+        e = self.edges()
+        p0 = self.positions.numpy().astype(np.float64)
+        l0 = np.linalg.norm(p0[e[:, 0]] - p0[e[:, 1]], axis=1)
+        worst = 1.0
+        for pose in poses:
+            p = self.posed(body, pose)[0].numpy()
+            l1 = np.linalg.norm(p[e[:, 0]] - p[e[:, 1]], axis=1)
+            worst = max(worst, float((l1 / np.maximum(l0, 1e-9)).max()))
+        return worst
+
+
+def _dense_body(body: BodyModel, parts=_COVERED) -> tuple[np.ndarray, np.ndarray]:
+    """Canonical points on the covered parts' triangles (vertices, centroids, edge midpoints) and
+    the skinning weights there."""
+    v = body.canonical_vertices.numpy()
+    w = body.skin_weights.numpy()
+    f = body.faces.numpy()
+    keep = np.isin(body.vertex_parts[f[:, 0]], [PART_INDEX[p] for p in parts])
+    f = f[keep]
+    bary = np.array([[1, 1, 1], [2, 1, 0], [1, 2, 0], [0, 2, 1], [0, 1, 2], [1, 0, 2], [2, 0, 1]], float) / 3.0
+    pts = np.einsum("sk,fkd->fsd", bary, v[f]).reshape(-1, 3)
+    wts = np.einsum("sk,fkj->fsj", bary, w[f]).reshape(-1, w.shape[1])
+    return pts, wts
+
+
+def landmark_heights(body: BodyModel) -> dict[str, float]:
+    J = body.canonical_joints.numpy()
+    L = body.bone_labels
+    z = lambda n: float(J[L.index(n), 2])
+    return {"waist": z("spine03"), "hips": z("upperleg01.L") + 0.06,
+            "knee": 0.5 * (z("lowerleg01.L") + z("lowerleg01.R")), "ankle": 0.5 * (z("foot.L") + z("foot.R"))}
+
+
+def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int = 64, row_step: float = 0.02,
+                        k: int = 24, sigma: float = 0.04, diffusion: tuple[float, float] = (3.0, 6.0)) -> GarmentLayer:
+    """The garment layer of ``body`` in the region of ``hint`` (see the module docstring).
+    ``diffusion``: the weight filter's sigma in grid rows and columns."""
+    if cols < 8:
+        raise ValueError(f"garment layer: need at least 8 columns, found {cols}")
+    pts, wts = _dense_body(body)
+    marks = landmark_heights(body)
+    rows = max(4, int(np.ceil((hint.top_z - hint.hem_z) / row_step)) + 1)
+    zs = np.linspace(hint.top_z, hint.hem_z, rows)
+    theta = np.arange(cols) * 2 * np.pi / cols
+    d = np.stack([np.sin(theta), -np.cos(theta)], 1)  # 0 = front (-Y), +pi/2 = the body's left (+X)
+    centres, radii = np.zeros((rows, 2)), np.zeros((rows, cols))
+    for i, z in enumerate(zs):
+        for width in (0.012, 0.025, 0.05):
+            on = np.abs(pts[:, 2] - z) < width
+            if on.sum() >= 16:
+                break
+        else:
+            raise ValueError(f"garment layer: no body surface near height {z:.3f} m")
+        sl = pts[on, :2]  # torso, thighs and shins only: the arms are not in _dense_body
+        centres[i] = sl.mean(0)
+        radii[i] = ((sl[None] - centres[i]) @ d.T).max(1)  # support function of the slice
+    radii = gaussian_filter1d(radii, 1.0, axis=0, mode="nearest")
+    t = np.clip((marks["hips"] - zs) / max(marks["hips"] - hint.hem_z, 1e-6), 0, 1) ** 1.3
+    radii = radii + (hint.standoff_top + (hint.standoff_hem - hint.standoff_top) * t)[:, None]
+    start = int(np.argmin(np.abs(zs - marks["hips"])))
+    radii[start:] = np.maximum.accumulate(radii[start:], axis=0)  # cloth hangs: no narrowing
+    xy = centres[:, None, :] + radii[..., None] * d[None]
+    P = np.concatenate([xy, np.broadcast_to(zs[:, None, None], (rows, cols, 1))], -1)
+    # normals and tangents from the grid
+    tang = np.roll(P, -1, axis=1) - np.roll(P, 1, axis=1)
+    down = np.gradient(P, axis=0)
+    nrm = np.cross(down, tang)
+    nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+    tang /= np.linalg.norm(tang, axis=-1, keepdims=True)
+    # spacing: mean distance to the ring and column neighbours
+    side = np.linalg.norm(np.roll(P, -1, axis=1) - P, axis=-1)
+    vert = np.linalg.norm(down, axis=-1)
+    spacing = 0.5 * (side + vert)
+    # weights: transfer from the nearest body points, diffused over the grid
+    dist, idx = cKDTree(pts).query(P.reshape(-1, 3), k=k)
+    g = np.exp(-(dist ** 2 - dist[:, :1] ** 2) / (2 * sigma ** 2))
+    g /= g.sum(1, keepdims=True)
+    W = np.einsum("nk,nkj->nj", g, wts[idx]).reshape(rows, cols, -1)
+    W = gaussian_filter(W, (diffusion[0], diffusion[1], 0), mode=("nearest", "wrap", "nearest"))
+    W = np.clip(W, 0, None)
+    W /= W.sum(-1, keepdims=True)
+    f32 = lambda a: torch.as_tensor(np.ascontiguousarray(a.reshape(rows * cols, *a.shape[2:])), dtype=torch.float32)
+    return GarmentLayer(f32(P), f32(nrm), f32(tang), f32(W), f32(spacing), (rows, cols), hint)
+
+
+def _leg_axis_x(J2: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """x of the polyline hip -> knee -> ankle (image points (3,2)) at image rows ``rows``."""
+    y, x = J2[:, 1], J2[:, 0]
+    order = np.argsort(y)
+    return np.interp(rows, y[order], x[order])
+
+
+def _body_silhouette(body: BodyModel, pose: BodyPose, camera, shape: tuple[int, int], grow: int = 1) -> np.ndarray:
+    """(H,W) bool: the posed body alone, splatted from points on its triangles and closed."""
+    from scipy.ndimage import binary_closing, binary_dilation
+
+    v = body.posed_vertices(pose).numpy()
+    f = body.faces.numpy()
+    bary = np.array([[1, 1, 1], [4, 1, 1], [1, 4, 1], [1, 1, 4]], float) / np.array([[3.0], [6.0], [6.0], [6.0]])
+    pts = np.concatenate([v, np.einsum("sk,fkd->fsd", bary, v[f]).reshape(-1, 3)])
+    uv, z = camera.project(pts)
+    H, W = shape
+    ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+    sil = np.zeros(shape, bool)
+    sil[uv[ok, 1].astype(int), uv[ok, 0].astype(int)] = True
+    sil = binary_closing(sil, iterations=2)
+    return binary_dilation(sil, iterations=grow) if grow else sil
+
+
+def volume_hint_from_masks(body: BodyModel, frames, *, max_frames: int = 8, min_cover: float = 0.9,
+                           min_rows: int = 3) -> VolumeHint | None:
+    """A VolumeHint from front-view ``frames`` (each with ``mask``, ``camera``, ``pose``): image rows
+    between the projected leg axes where the body itself leaves a gap (background between the legs
+    of the posed body's own silhouette) and the mask covers that gap are cloth; the lowest is the
+    hem (its canonical height interpolated along the legs from hip to knee to ankle, median over
+    frames), the mask's width there beyond the body's is the flare. None when fewer than
+    ``min_rows`` rows show cloth in every frame (tight clothing)."""
+    L = body.bone_labels
+    names = {s: [f"upperleg01.{s}", f"lowerleg01.{s}", f"foot.{s}"] for s in "LR"}
+    marks = landmark_heights(body)
+    cz = np.array([marks["hips"] - 0.06, marks["knee"], marks["ankle"]])  # canonical heights of the chain
+    picks = np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)
+    hems, flares = [], []
+    for fi in sorted(set(picks.tolist())):
+        f = frames[fi]
+        mask = np.asarray(f.mask) > 0.5
+        J = body.posed_joints(f.pose).numpy()
+        uv = {s: f.camera.project(J[[L.index(n) for n in names[s]]])[0] for s in "LR"}
+        depth = float(f.camera.project(J[[L.index("upperleg01.L")]])[1][0])
+        sil = _body_silhouette(body, f.pose, f.camera, mask.shape)
+        top = int(np.ceil(max(uv["L"][0, 1], uv["R"][0, 1])))
+        bottom = int(np.floor(min(uv["L"][2, 1], uv["R"][2, 1])))
+        rows = np.arange(max(top, 0), min(bottom, mask.shape[0]))
+        if len(rows) < 4:
+            continue
+        xl, xr = _leg_axis_x(uv["L"], rows), _leg_axis_x(uv["R"], rows)
+        covered = []
+        for r, a, b in zip(rows, np.minimum(xl, xr), np.maximum(xl, xr)):
+            a, b = max(int(np.ceil(a)), 0), min(int(np.floor(b)), mask.shape[1] - 1)
+            gap = ~sil[r, a:b + 1]  # between the leg axes, where the body leaves the background
+            if gap.sum() >= 2 and mask[r, a:b + 1][gap].mean() >= min_cover:
+                covered.append(r)
+        if len(covered) < min_rows:
+            continue
+        hem_row = max(covered)
+        hems.append(float(np.interp(hem_row, uv["L"][:, 1], cz)))  # along hip -> knee -> ankle
+        on, body_on = np.flatnonzero(mask[hem_row]), np.flatnonzero(sil[hem_row])
+        if len(on) and len(body_on):
+            extra_px = max(0.0, ((on.max() - on.min()) - (body_on.max() - body_on.min())) / 2)
+            flares.append(extra_px * depth / f.camera.fx)
+    if not hems:
+        return None
+    hem = float(np.median(hems))
+    flare = float(np.clip(np.median(flares) if flares else 0.05, 0.02, 0.15))
+    return VolumeHint(top_z=marks["waist"], hem_z=min(hem, marks["hips"] - 0.1), standoff_hem=flare)
