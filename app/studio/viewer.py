@@ -22,6 +22,7 @@ from imgui_bundle import imgui
 from renderer.render_modes import RenderMode
 
 from .layout import draw_panels
+from .orbit_input import apply_mouse
 from .pacing import FramePacer
 from .panels.viewer import VIEWER_PANELS, ViewerContext
 from .ply_source import PlyFileState, read_ply_for_view
@@ -124,21 +125,7 @@ class ViewerApp:
 
     # ----- per frame -----------------------------------------------------------------------------
     def handle_input(self) -> None:
-        io = imgui.get_io()
-        d = io.mouse_delta
-        if d.x or d.y or io.mouse_wheel or imgui.is_any_mouse_down() or imgui.is_any_item_active():
-            self.pacer.note_input()
-        if io.want_capture_mouse:
-            return
-        fh = max(1, glfw.get_framebuffer_size(self.window)[1])
-        if imgui.is_mouse_dragging(imgui.MouseButton_.left) and (d.x or d.y):
-            self.orbit.drag(d.x, d.y, "left", fh)
-        elif (imgui.is_mouse_dragging(imgui.MouseButton_.right) or imgui.is_mouse_dragging(
-                imgui.MouseButton_.middle)) and (d.x or d.y):
-            self.orbit.drag(d.x, d.y, "right", fh)
-        if io.mouse_wheel:
-            self.orbit.scroll(io.mouse_wheel)
-        if imgui.is_key_pressed(imgui.Key.h) and not io.want_text_input:
+        if apply_mouse(self.orbit, self.pacer, glfw.get_framebuffer_size(self.window)[1]):
             self.show_gui = not self.show_gui
 
     def draw_scene(self, size) -> None:

@@ -43,6 +43,7 @@ from . import panels
 from .export_job import ExportJob, ExportPanelState
 from .footage import FootageController
 from .layout import STUDIO_PANELS, draw_panels
+from .orbit_input import apply_mouse
 from .pacing import FramePacer
 from .panels.stage2 import default_settings
 from .trainer_thread import TrainerThread
@@ -440,21 +441,7 @@ class StudioApp:
             print(f"wonderhuman-studio: {self.export.message}", file=sys.stderr)
 
     def handle_input(self) -> None:
-        io = imgui.get_io()
-        d = io.mouse_delta
-        if d.x or d.y or io.mouse_wheel or imgui.is_any_mouse_down() or imgui.is_any_item_active():
-            self.pacer.note_input()
-        if io.want_capture_mouse:
-            return
-        fh = max(1, self.framebuffer_size()[1])
-        if imgui.is_mouse_dragging(imgui.MouseButton_.left) and (d.x or d.y):
-            self.orbit.drag(d.x, d.y, "left", fh)
-        elif (imgui.is_mouse_dragging(imgui.MouseButton_.right) or imgui.is_mouse_dragging(
-                imgui.MouseButton_.middle)) and (d.x or d.y):
-            self.orbit.drag(d.x, d.y, "right", fh)
-        if io.mouse_wheel:
-            self.orbit.scroll(io.mouse_wheel)
-        if imgui.is_key_pressed(imgui.Key.h) and not io.want_text_input:
+        if apply_mouse(self.orbit, self.pacer, self.framebuffer_size()[1]):
             self.view.show_gui = not self.view.show_gui
 
     def advance_playback(self) -> None:
