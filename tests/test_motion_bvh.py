@@ -19,22 +19,12 @@ try:  # the independent writer (the 'test' extra); the broken-file tests below n
         import glm
 except ImportError:  # pragma: no cover
     bvhio = glm = None
+import motion_files  # noqa: E402
+
 needs_bvhio = pytest.mark.skipif(bvhio is None, reason="bvhio (pip install bvhio) writes the test files")
 
-# A CMU/Mixamo-like skeleton in centimetres, Y up, facing +Z (+X is the body's left), in T-pose.
-SKELETON = [
-    ("Hips", None, (0.0, 95.0, 0.0)),
-    ("LeftUpLeg", "Hips", (9.0, -5.0, 0.0)), ("LeftLeg", "LeftUpLeg", (0.0, -43.0, 0.0)),
-    ("LeftFoot", "LeftLeg", (0.0, -42.0, 0.0)), ("LeftToeBase", "LeftFoot", (0.0, -7.0, 13.0)),
-    ("RightUpLeg", "Hips", (-9.0, -5.0, 0.0)), ("RightLeg", "RightUpLeg", (0.0, -43.0, 0.0)),
-    ("RightFoot", "RightLeg", (0.0, -42.0, 0.0)), ("RightToeBase", "RightFoot", (0.0, -7.0, 13.0)),
-    ("Spine", "Hips", (0.0, 10.0, 0.0)), ("Spine1", "Spine", (0.0, 15.0, 0.0)),
-    ("Neck", "Spine1", (0.0, 25.0, 0.0)), ("Head", "Neck", (0.0, 10.0, 2.0)),
-    ("LeftShoulder", "Spine1", (3.0, 20.0, 0.0)), ("LeftArm", "LeftShoulder", (15.0, 0.0, 0.0)),
-    ("LeftForeArm", "LeftArm", (28.0, 0.0, 0.0)), ("LeftHand", "LeftForeArm", (25.0, 0.0, 0.0)),
-    ("RightShoulder", "Spine1", (-3.0, 20.0, 0.0)), ("RightArm", "RightShoulder", (-15.0, 0.0, 0.0)),
-    ("RightForeArm", "RightArm", (-28.0, 0.0, 0.0)), ("RightHand", "RightForeArm", (-25.0, 0.0, 0.0)),
-]
+# the CMU/Mixamo-like T-pose skeleton of tests/motion_files.py, without its finger
+SKELETON = [j for j in motion_files.SKELETON if j[0] != "LeftHandIndex1"]
 END_SITES = {"LeftToeBase": (0.0, 0.0, 5.0), "RightToeBase": (0.0, 0.0, 5.0), "Head": (0.0, 18.0, 0.0),
              "LeftHand": (10.0, 0.0, 0.0), "RightHand": (-10.0, 0.0, 0.0)}
 # a mix of rotation orders, as files from different tools have
