@@ -47,3 +47,20 @@ class BackgroundJob(Generic[T]):
                 traceback.print_exc()
         finally:
             self.seconds = time.perf_counter() - self._t0
+
+
+def take_finished(holder, what: str) -> BackgroundJob | None:
+    """``holder.job`` once it has finished (``holder.job`` is cleared), or None while it runs or
+    when there is none. A job that failed leaves ``holder.message`` saying "could not open
+    ``what``" (and stderr) and gives None too. For the GL thread: it never waits."""
+    import sys
+
+    job = holder.job
+    if job is None or not job.done:
+        return None
+    holder.job = None
+    if job.error is not None:
+        holder.message = f"could not open {what}: {job.error}"
+        print(f"wonderhuman-studio: {holder.message}", file=sys.stderr)
+        return None
+    return job

@@ -42,6 +42,7 @@ from renderer.render_modes import RenderMode
 from . import panels
 from .export_job import ExportJob, ExportPanelState
 from .footage import FootageController
+from .jobs import take_finished
 from .layout import STUDIO_PANELS, draw_panels
 from .orbit_input import apply_mouse
 from .pacing import FramePacer
@@ -287,13 +288,8 @@ class StudioApp:
     def poll_motion(self) -> None:
         """GL thread, once a frame: take a finished motion load (never waits)."""
         m = self.view.motion
-        job = m.job
-        if job is None or not job.done:
-            return
-        m.job = None
-        if job.error is not None:
-            m.message = f"could not open the motion file: {job.error}"
-            print(f"wonderhuman-studio: {m.message}", file=sys.stderr)
+        job = take_finished(m, "the motion file")
+        if job is None:
             return
         loaded, previous = job.result, m.loaded
         self.trainer.add_pose_sequence(loaded.key, loaded.poses)
@@ -382,13 +378,8 @@ class StudioApp:
 
     def poll_beside(self) -> None:
         f = self.view.beside
-        job = f.job
-        if job is None or not job.done:
-            return
-        f.job = None
-        if job.error is not None:
-            f.message = f"could not open the .ply: {job.error}"
-            print(f"wonderhuman-studio: {f.message}", file=sys.stderr)
+        job = take_finished(f, "the .ply")
+        if job is None:
             return
         f.loaded, f.message = job.result, None
         self.view.show_beside = True
