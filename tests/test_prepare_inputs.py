@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from detector_helpers import detector_python
 from PIL import Image
 
 from reconstruct.data.prepare import (Crop, InputError, NoPersonError, PersonCandidate, PersonChoiceError,
                                       choose_person, person_crop, prepare_video)
 from reconstruct.data.prepare.crop import apply_crop
-from reconstruct.data.prepare.detector import DetectorError, find_detector_python
 from reconstruct.data.prepare.fit import FitConfig
 from reconstruct.data.prepare.masks import fill_holes, remove_others
 from test_prepare_video import SyntheticSceneDetector
@@ -43,13 +43,6 @@ def _png(path: Path, image: np.ndarray) -> Path:
     return path
 
 
-def _detector_python() -> str | None:
-    try:
-        return find_detector_python()[0]
-    except DetectorError as exc:
-        if os.environ.get("WONDERHUMAN_REQUIRE_DETECTOR") == "1":
-            pytest.fail(f"WONDERHUMAN_REQUIRE_DETECTOR=1 but no detector: {exc}")
-        return None
 
 
 # ----- inputs and their errors ---------------------------------------------------------------------
@@ -120,7 +113,7 @@ def test_input_errors_name_the_path(synth, tmp_path, capsys):
 
 
 def test_no_person_in_an_image_with_mediapipe(tmp_path):
-    python = _detector_python()
+    python = detector_python()
     if python is None:
         pytest.skip("no Python with mediapipe==0.10.21")
     from reconstruct.data.prepare import MediapipeDetector
@@ -156,7 +149,7 @@ def test_two_people_side_by_side_with_mediapipe(synth, tmp_path):
     """Two rendered people pasted side by side (the right one smaller): the larger is picked by default,
     --person 2 takes the other; the other is masked out; the crop's camera puts the fitted joints on
     the chosen person in the source image."""
-    python = _detector_python()
+    python = detector_python()
     if python is None:
         pytest.skip("no Python with mediapipe==0.10.21")
     from reconstruct.data.prepare import MediapipeDetector
@@ -238,7 +231,7 @@ def test_fill_holes_fills_small_enclosed_holes_only():
 def test_grabcut_restores_a_bite_and_keeps_the_rest(tmp_path):
     """A light 'skirt' on a light background that the segmenter bit into: the refinement grows it back;
     a refinement that disagrees wildly falls back to the segmenter's mask."""
-    python = _detector_python()
+    python = detector_python()
     if python is None:
         pytest.skip("no Python with mediapipe/OpenCV")
     script = tmp_path / "check.py"

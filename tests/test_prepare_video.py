@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from detector_helpers import detector_python
 
 from reconstruct.data.prepare import (Detections, DetectorError, MediapipeDetector, NoPersonError,
                                       PersonDetector, VideoError, parse_mediapipe_output, prepare_video)
@@ -55,13 +56,6 @@ def video(synth, tmp_path_factory):
     return path
 
 
-def _detector_python() -> str | None:
-    try:
-        return find_detector_python()[0]
-    except DetectorError as exc:
-        if os.environ.get("WONDERHUMAN_REQUIRE_DETECTOR") == "1":
-            pytest.fail(f"WONDERHUMAN_REQUIRE_DETECTOR=1 but no detector: {exc}")
-        return None
 
 
 def _truth_mask(mask: np.ndarray, scene_folder: Path) -> np.ndarray:
@@ -100,7 +94,7 @@ def _baseline_error(synth, scene_folder: Path, scale_align: bool = False) -> flo
 
 # ----- the real detector ------------------------------------------------------------------------------
 def test_prepare_mediapipe_end_to_end(synth, video, tmp_path, capsys):
-    python = _detector_python()
+    python = detector_python()
     if python is None:
         pytest.skip("no Python with mediapipe==0.10.21 (bash scripts/bootstrap.sh video); "
                     "the fit is still tested with the test double below")
@@ -139,7 +133,7 @@ def test_prepare_mediapipe_end_to_end(synth, video, tmp_path, capsys):
 
 
 def test_prepare_mediapipe_no_person(tmp_path):
-    python = _detector_python()
+    python = detector_python()
     if python is None:
         pytest.skip("no Python with mediapipe==0.10.21")
     from app.export import write_frames
