@@ -69,7 +69,7 @@ def emblem_rect(view, pad: int = 4) -> tuple[int, int, int, int]:
 @torch.no_grad()
 def inject_mirror_leak(run) -> None:
     from reconstruct.body.parts import PART_INDEX
-    from reconstruct.stage2.propagation import mirror_colors
+    from reconstruct.appearance.propagation import mirror_colors
 
     t = run.resume_training()
     state, model = t.state, t.state.model

@@ -6,8 +6,8 @@ unseen PSNR, SSIM, front_leak) -- the ceiling Stage II's guidance can reach with
                                       [--sheet OUT.png]
 
 ``stage1``: the Stage I colours (no repaint); ``diffusion``: the earlier screened harmonic fill
-with mirrored colours (reconstruct.stage2.propagation); ``wrap``: the wrap-around fill
-(reconstruct.stage2.wrap_fill). Uses the run's Stage I checkpoint when it has one.
+with mirrored colours (reconstruct.appearance.propagation); ``wrap``: the wrap-around fill
+(reconstruct.appearance.wrap_fill). Uses the run's Stage I checkpoint when it has one.
 """
 
 from __future__ import annotations
@@ -55,8 +55,8 @@ def load_stage1(run: Path):
 
 def method_colors(name: str, state, erosion: int) -> tuple[torch.Tensor, torch.Tensor]:
     from reconstruct.body.uv_map import texel_neighbours
-    from reconstruct.stage2.propagation import erode, propagate_colors
-    from reconstruct.stage2.wrap_fill import wrap_fill_colors
+    from reconstruct.appearance.propagation import erode, propagate_colors
+    from reconstruct.appearance.wrap_fill import wrap_fill_colors
 
     model = state.model
     nb = texel_neighbours(model.uv_map.texel_rc, model.uv_map.resolution)

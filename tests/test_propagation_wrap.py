@@ -1,4 +1,4 @@
-"""The wrap-around fill (reconstruct.stage2.wrap_fill) on hand-built surfaces with known answers:
+"""The wrap-around fill (reconstruct.appearance.wrap_fill) on hand-built surfaces with known answers:
 a striped cylinder with a front emblem (the back gets the stripes at the right heights, none of
 the emblem), checks that vary left-right (the back continues them with their phase), and a head
 with a face in front and hair at the sides (the back gets hair, not skin)."""
@@ -7,7 +7,7 @@ import numpy as np
 import torch
 
 from reconstruct.body.parts import PART_INDEX
-from reconstruct.stage2.wrap_fill import WrapFillConfig, wrap_fill_colors
+from reconstruct.appearance.wrap_fill import WrapFillConfig, wrap_fill_colors
 
 RED, WHITE, BLUE, SKIN, HAIR, YELLOW = (np.array(c, float) for c in (
     (0.8, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.2, 0.8), (0.9, 0.7, 0.6), (0.2, 0.1, 0.05), (1.0, 0.9, 0.0)))
@@ -87,6 +87,25 @@ def test_head_back_is_hair_not_face():
     assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
 
 
+def test_head_back_is_hair_not_the_ears_at_the_same_height():
+    # at face height the video saw the head only up to the ears (skin, in front of the coronal
+    # plane); above, the hair round the sides up to 100 degrees. The back at face height takes the
+    # hair seen behind the centre, not a band of ear-coloured skin across it
+    pos, th = cylinder(radius=0.09, height=0.22, n_theta=72, n_z=44, z0=1.55)
+    deg = np.abs(np.degrees(th))
+    low = pos[:, 2] < 1.72
+    skin = low & (deg < 92)
+    col = np.where(skin[:, None], SKIN, HAIR)
+    seen = np.where(low, deg < 92, deg <= 100)
+    parts = np.full(len(pos), PART_INDEX["head"])
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    back = ~seen
+    assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
+    # without the rule (the band on both sides of the centre) the skin band comes back: the case is real
+    both = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(posterior_band_parts=())).numpy()
+    assert np.linalg.norm(both[back & low] - SKIN, axis=1).mean() < 0.05
+
+
 def test_parts_are_filled_separately_and_returns_float32_tensor():
     pos, th = cylinder()
     torso_top = pos[:, 2] > 1.25
@@ -109,7 +128,7 @@ def test_nothing_seen_or_everything_seen():
 
 
 def test_grazing_seen_gaussians_are_repainted_except_on_the_head():
-    from reconstruct.stage2.wrap_fill import reliable_seen
+    from reconstruct.appearance.wrap_fill import reliable_seen
 
     pos, th = cylinder()
     normals = np.c_[np.sin(th), -np.cos(th), np.zeros_like(th)]

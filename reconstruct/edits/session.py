@@ -200,7 +200,7 @@ class EditSession:
         if self.plan is not None and hasattr(self.plan, "refresh_visibility"):
             self.plan.refresh_visibility(state)
             return self.plan.pseudo_colors
-        from ..stage2.propagation import erode, propagate_colors
+        from ..appearance.propagation import erode, propagate_colors
 
         trusted = state.trusted_seen
         if trusted is None:

@@ -1,8 +1,8 @@
 """The built-in prior: no learned weights. The unseen view is pulled towards the same view of the
 avatar rendered with *wrap-around appearance*: each garment's low-frequency colours and
 height-periodic patterns carried round from the sides the video saw to the unseen side, front-only
-details (a chest print, the face) left out (reconstruct.stage2.wrap_fill; the earlier diffusion
-fill with mirrored colours, reconstruct.stage2.propagation, with ``propagation=diffusion``), a
+details (a chest print, the face) left out (reconstruct.appearance.wrap_fill; the earlier diffusion
+fill with mirrored colours, reconstruct.appearance.propagation, with ``propagation=diffusion``), a
 pseudo-target supplied by the caller.
 
 It is a pseudo-target regression, not a diffusion model: the loss is the mean squared error

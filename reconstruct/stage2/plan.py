@@ -22,6 +22,8 @@ import torch
 
 from ..body.uv_map import texel_neighbours
 from ..camera import Camera
+from ..appearance.propagation import erode, propagate_colors
+from ..appearance.wrap_fill import wrap_fill_colors
 from ..priors.propagated import build_prior
 from ..train.checkpoint import STAGE1_CHECKPOINT_NAME
 from ..train.plan import StagePlan
@@ -29,8 +31,6 @@ from ..train.render import render_avatar
 from ..train.steps import GivenViewStep
 from .config import Stage2Config
 from .guidance import GuidanceStep, Stage2Error, framed_camera, square_crop
-from .propagation import erode, propagate_colors
-from .wrap_fill import wrap_fill_colors
 from .view_selection import (CandidateView, ViewSelectionConfig, azimuth_of, candidate_cameras, elevation_of,
                              select_views)
 

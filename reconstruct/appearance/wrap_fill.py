@@ -63,6 +63,10 @@ class WrapFillConfig:
     # parts whose seen sides count however grazing: the head, whose sides (hair) are seen only at
     # grazing angles and whose frontal part is the face, a front-only detail
     grazing_parts: tuple[str, ...] = ("head",)
+    # parts whose unseen side continues the seen surface behind the part's centre only: the back
+    # of the head is the hair seen behind the ears, not the skin of the ears and cheeks at the
+    # same height (which, carried round, would paint a band of face colour across the back)
+    posterior_band_parts: tuple[str, ...] = ("head",)
 
 
 def _as_np(x, dtype=np.float64) -> np.ndarray:
@@ -177,6 +181,10 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         both = _on_both_sides(band_pos, band_col, pos[members, 0].mean(), cfg)
         if both.sum() >= cfg.k:
             band_pos, band_col = band_pos[both], band_col[both]
+        if p < len(PART_NAMES) and PART_NAMES[p] in cfg.posterior_band_parts:
+            behind = band_pos[:, 1] > pos[members, 1].mean()
+            if behind.sum() >= cfg.k:
+                band_pos, band_col = band_pos[behind], band_col[behind]
         # 2. low-frequency fill along the wrap direction (same height)
         low = _same_height_median(pos[todo], band_pos, band_col, cfg)
         # 3. the mirrored colour, kept where the band shows that colour at a nearby height
