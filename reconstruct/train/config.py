@@ -73,6 +73,11 @@ class Stage1Config(StageSettings):
     pose_refinement: bool = False
     lr_pose: float = 5e-3
     pose_refinement_start: float = 0.1  # fraction of the run before poses are optimised
+    # at the end of the stage, the Gaussians no training view saw take the wrap-around fill's colour
+    # of the seen surface (train/unseen_fill.py) instead of the decoder's guess for untrained
+    # texels; those within fill_unseen_ring texels of a seen one keep their decoded colour
+    fill_unseen: bool = True
+    fill_unseen_ring: int = 1
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     crop_margin: int = 16  # render and compare only the body's box (plus margin) of each frame
@@ -102,6 +107,8 @@ class Stage1Config(StageSettings):
         if isinstance(self.avatar, dict):
             self.avatar = config_layer.from_dict(AvatarConfig, self.avatar, "avatar")
         super().__post_init__()
+        if self.fill_unseen_ring < 0:
+            raise ValueError(f"fill_unseen_ring must be >= 0, found {self.fill_unseen_ring}")
         if not 0 <= self.lr_decay_start < 1 or not 0 < self.lr_final <= 1:
             raise ValueError(f"need 0 <= lr_decay_start < 1 and 0 < lr_final <= 1, found {self.lr_decay_start} "
                              f"and {self.lr_final}")
@@ -115,7 +122,7 @@ class Stage1Config(StageSettings):
     def paper(cls, **kw) -> "Stage1Config":
         """The settings before the Stage I fidelity work (GaussianAvatar's schedule, every Gaussian
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
-        base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, avatar=AvatarConfig.paper())
+        base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False, avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
 
     @classmethod
@@ -126,6 +133,7 @@ class Stage1Config(StageSettings):
             d["cull_backfacing"] = None
             if isinstance(d.get("avatar"), dict) and "splat" not in d["avatar"]:
                 d["avatar"] = {**LEGACY_AVATAR, **d["avatar"]}
+        d.setdefault("fill_unseen", False)  # recorded before Stage I filled its unseen side
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed
         return super().from_dict(d)

@@ -11,6 +11,7 @@ import numpy as np
 
 from .config import Stage1Config, StageSettings
 from .steps import GivenViewStep, TrainingStep
+from .unseen_fill import fill_unseen_colors
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
@@ -36,6 +37,11 @@ class StagePlan:
         studio (e.g. λ_SDS)."""
         return {}
 
+    def finish(self, state: AvatarState) -> str | None:
+        """Called once when the stage has used up its steps or minutes (before the final
+        evaluation and checkpoint). Returns a line for the log, or None."""
+        return None
+
     def state_dict(self) -> dict:
         """What a checkpoint must hold to continue the plan: plain data and tensors only."""
         return {"settings": self.settings.to_dict()}
@@ -59,3 +65,10 @@ class Stage1Plan(StagePlan):
         c = self.settings
         return [{"params": state.model.decoder.parameters(), "lr": c.lr_decoder, "name": "decoder"},
                 {"params": [state.model.features], "lr": c.lr_features, "name": "features"}]
+
+    def finish(self, state: AvatarState) -> str | None:
+        """The never-seen Gaussians take the wrap-around fill's colours (``fill_unseen``)."""
+        if not self.settings.fill_unseen:
+            return None
+        n = fill_unseen_colors(state, keep_ring=self.settings.fill_unseen_ring)
+        return f"Stage I: {n} Gaussians no training view saw were painted with the seen side's colours" if n else None

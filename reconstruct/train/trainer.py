@@ -184,6 +184,7 @@ class Trainer:
     # ----- one step ----------------------------------------------------------------------------
     def step(self) -> dict:
         t0 = time.perf_counter()
+        was_done = self.done
         kind = self.plan.next_kind(self.rng)
         mult = self.plan.settings.lr_schedule().value(self.progress)
         for g, base in zip(self.optimizer.param_groups, self.base_lrs):
@@ -200,6 +201,8 @@ class Trainer:
         dt = time.perf_counter() - t0
         self.elapsed += dt
         self.stage_elapsed += dt
+        if self.done and not was_done:
+            self._finish_stage()
         if not taken:
             return self._skipped_step(kind, outcome)
         if outcome.after_update is not None:
@@ -209,6 +212,15 @@ class Trainer:
                **self.plan.status(self.stage_step)}
         self.latest.update(out)
         return out
+
+    def _finish_stage(self) -> None:
+        """The plan's last act, once, when its stage has used up its steps or minutes (before the
+        final evaluation and checkpoint); its time counts in the run's clock, not the stage's."""
+        t0 = time.perf_counter()
+        note = self.plan.finish(self.state)
+        self.elapsed += time.perf_counter() - t0
+        if note:
+            print(note, file=sys.stderr)
 
     def _skipped_step(self, kind: str, outcome) -> dict:
         """A step whose numbers were not finite: nothing was changed (or the last good state was

@@ -1,0 +1,97 @@
+"""Stage I's unseen fill (reconstruct/train/unseen_fill.py): never-seen Gaussians decode to the
+wrap-around fill's colours, everything else is left as it was, and the trainer runs it once when
+Stage I ends."""
+
+import numpy as np
+import pytest
+import torch
+
+from reconstruct.appearance.propagation import erode
+from reconstruct.appearance.wrap_fill import wrap_fill_colors
+from reconstruct.body.uv_map import texel_neighbours
+from reconstruct.train.unseen_fill import fill_unseen_colors
+
+
+@pytest.fixture
+def trainer(tiny_scene, tiny_config, tmp_path):
+    from reconstruct.train.trainer import Trainer
+
+    t = Trainer(tiny_scene, tiny_config, tmp_path / "run")
+    for _ in range(6):
+        t.step()
+    return t
+
+
+def _decoded(model):
+    with torch.no_grad():
+        c = model.canonical(None)
+    return {"colors": c.colors.clone(), "means": c.means.clone(), "scales": c.scales.clone()}
+
+
+@pytest.mark.parametrize("ring", [0, 1])
+def test_unseen_gaussians_decode_to_the_fill_and_nothing_else_moves(trainer, ring):
+    state, model = trainer.state, trainer.model
+    seen = state.seen.clone()
+    assert 0 < int(seen.sum()) < len(seen), "the tiny run must see part of the body"
+    before = _decoded(model)
+    nb = texel_neighbours(model.uv_map.texel_rc, model.uv_map.resolution)
+    trusted = torch.as_tensor(erode(seen.numpy(), nb, 2))
+    expected = wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted, before["colors"], nb,
+                                normals=model.base_normals.cpu())
+    n = fill_unseen_colors(state, keep_ring=ring)
+    after = _decoded(model)
+    todo = torch.as_tensor(erode((~seen).numpy(), nb, ring)) if ring else ~seen
+    assert n == int(todo.sum()) > 0
+    # the filled Gaussians decode to the fill's colours (through the logit and the residual's gain)
+    assert (after["colors"][todo] - expected[todo]).abs().max() < 1e-4
+    # and they changed: the fill is not the decoder's guess
+    assert (before["colors"][todo] - expected[todo]).abs().max() > 0.05
+    # seen ones and the ring kept by keep_ring are bit-identical, geometry untouched
+    assert torch.equal(after["colors"][~todo], before["colors"][~todo])
+    assert torch.equal(after["means"], before["means"]) and torch.equal(after["scales"], before["scales"])
+
+
+def test_painted_visibility_is_respected(trainer):
+    from reconstruct.edits import PaintSeen
+    from reconstruct.edits.session import EditSession
+
+    state = trainer.state
+    unseen = np.flatnonzero(~state.seen.numpy())
+    painted = unseen[: len(unseen) // 2]
+    session = EditSession(state, autosave=False, load=False)
+    session.selection = np.zeros(state.num_gaussians, bool)
+    session.selection[painted] = True
+    session.apply(PaintSeen())
+    before = _decoded(trainer.model)["colors"]
+    fill_unseen_colors(state, keep_ring=0)
+    after = _decoded(trainer.model)["colors"]
+    assert torch.equal(after[painted], before[painted])  # painted seen: not filled
+    rest = unseen[len(unseen) // 2:]
+    assert (after[rest] - before[rest]).abs().max() > 0.05
+
+
+def test_trainer_fills_once_at_the_end_of_stage1(tiny_scene, tiny_config, tmp_path, monkeypatch):
+    from reconstruct.train import plan as plan_module
+    from reconstruct.train.trainer import Trainer
+
+    calls = []
+    real = plan_module.fill_unseen_colors
+    monkeypatch.setattr(plan_module, "fill_unseen_colors", lambda state, **kw: calls.append(kw) or real(state, **kw))
+    tiny_config.iters = 5
+    t = Trainer(tiny_scene, tiny_config, tmp_path / "run")
+    for _ in range(4):
+        t.step()
+    assert calls == []
+    t.step()
+    assert t.done and calls == [{"keep_ring": tiny_config.fill_unseen_ring}]
+    t.step()  # a step past the end (the studio's single step) does not fill again
+    assert len(calls) == 1
+
+
+def test_paper_settings_and_older_runs_do_not_fill():
+    from reconstruct.train.config import Stage1Config
+
+    assert Stage1Config().fill_unseen and not Stage1Config.paper().fill_unseen
+    old = Stage1Config().to_dict()
+    del old["fill_unseen"]
+    assert not Stage1Config.from_dict(old).fill_unseen
