@@ -12,7 +12,7 @@ propagation does not trust as seen are pulled towards the posed body normals
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import torch
@@ -24,11 +24,26 @@ from ..priors.base import CameraDelta, GuidanceInput, GuidancePrior
 from ..raster import rasterization
 from ..train import losses as L
 from ..train.render import crop_camera, render_avatar
-from ..train.steps import StepOutcome, TrainingStep, gaussians_finite
+from ..train.steps import StepContext, StepOutcome, TrainingStep, gaussians_finite
 
 if TYPE_CHECKING:
-    from ..train.trainer import Trainer
-    from .plan import Stage2Plan
+    from .config import Stage2Config
+    from .view_selection import CandidateView
+
+
+class GuidancePlan(Protocol):
+    """What a guidance step reads from its stage's plan (``Stage2Plan`` is one): the settings, the
+    selected views, the reference images, the propagated pseudo-colours and the λ_SDS schedule."""
+
+    settings: Stage2Config
+    guidance_background: torch.Tensor
+    pseudo_colors: torch.Tensor | None
+
+    def pick_view(self, space: str, rng: np.random.Generator) -> tuple[object, CandidateView]: ...
+
+    def reference_image(self, trainer: StepContext, frame: int | None) -> torch.Tensor: ...
+
+    def sds_weight(self, stage_step: int) -> float: ...
 
 
 class Stage2Error(ValueError):
@@ -75,12 +90,12 @@ def square_crop(image: np.ndarray, mask: np.ndarray, size: int, background, marg
 class GuidanceStep(TrainingStep):
     """A guidance step in one space ("canonical" or "observation") on the plan's selected views."""
 
-    def __init__(self, space: str, plan: Stage2Plan, prior: GuidancePrior) -> None:
+    def __init__(self, space: str, plan: GuidancePlan, prior: GuidancePrior) -> None:
         self.kind = space
         self.plan = plan
         self.prior = prior
 
-    def __call__(self, trainer: Trainer) -> StepOutcome:
+    def __call__(self, trainer: StepContext) -> StepOutcome:
         plan, state, s2 = self.plan, trainer.state, self.plan.settings
         device = state.device
         sv, view = plan.pick_view(self.kind, trainer.rng)

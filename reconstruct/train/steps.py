@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, Protocol
 
 import torch
 
@@ -23,7 +23,27 @@ from .config import Stage1Config
 from .render import render_avatar
 
 if TYPE_CHECKING:
-    from .trainer import Trainer
+    import numpy as np
+
+    from ..avatar.state import AvatarState
+    from .data import TrainingData
+
+
+class StepContext(Protocol):
+    """What a training step reads from the loop that runs it (the ``Trainer`` is one): the avatar,
+    the training images, where the stage is, and its random numbers."""
+
+    state: AvatarState
+    data: TrainingData
+    lpips: object | None
+    rng: np.random.Generator
+    stage_step: int
+    device: torch.device
+
+    @property
+    def progress(self) -> float: ...
+
+    def next_frame(self) -> int: ...
 
 
 @dataclass
@@ -59,7 +79,7 @@ class TrainingStep(ABC):
     kind: str
 
     @abstractmethod
-    def __call__(self, trainer: Trainer) -> StepOutcome:
+    def __call__(self, trainer: StepContext) -> StepOutcome:
         ...
 
 
@@ -75,7 +95,7 @@ class GivenViewStep(TrainingStep):
         self.marks_seen = marks_seen
         self.lambda_pose_features = lambda_pose_features
 
-    def __call__(self, trainer: Trainer) -> StepOutcome:
+    def __call__(self, trainer: StepContext) -> StepOutcome:
         cfg, state, data = self.config, trainer.state, trainer.data
         i = trainer.next_frame()
         tgt = data.targets[i]
