@@ -24,7 +24,7 @@ import dataclasses
 import hashlib
 import threading
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import torch
@@ -34,8 +34,18 @@ from .ops import Erase, Lock, Op, PaintSeen, PaintUnseen, Recolour, Redo
 
 if TYPE_CHECKING:
     from ..avatar.model import AvatarModel, CanonicalGaussians, PosedGaussians
-    from ..avatar.state import AvatarState
     from ..body.pose import BodyPose
+
+
+class DecodingAvatar(Protocol):
+    """What a lock needs of the avatar it holds (``AvatarState`` is one): its model and the pose
+    encoder's input at a frame or pose."""
+
+    model: AvatarModel
+
+    def articulation(self, frame: int | None) -> torch.Tensor: ...
+
+    def articulation_of_pose(self, pose: BodyPose) -> torch.Tensor: ...
 
 LOCKED_FIELDS = ("means", "normals", "colors", "scales", "offsets_raw")
 CACHE_LIMIT = 96  # decoded frames kept per lock (Stage II: the frozen copy decodes per frame)
@@ -88,7 +98,7 @@ class EditEntry:
             return m
 
     @torch.no_grad()
-    def locked_values(self, state: AvatarState, frame: int | None, pose: BodyPose | None) -> CanonicalGaussians:
+    def locked_values(self, state: DecodingAvatar, frame: int | None, pose: BodyPose | None) -> CanonicalGaussians:
         """All Gaussians as the model decoded them at lock time, at video frame ``frame`` or at
         ``pose`` (the same whatever the pose when the model had no pose encoder then)."""
         m = self.frozen_model(state.model)
@@ -212,7 +222,7 @@ class EditList:
         return torch.where(ot > 0, torch.ones_like(flags), torch.where(ot < 0, torch.zeros_like(flags), flags))
 
     # ----- Gaussians ----------------------------------------------------------------------
-    def apply_canonical(self, canon: CanonicalGaussians, state: AvatarState, frame: int | None = None,
+    def apply_canonical(self, canon: CanonicalGaussians, state: DecodingAvatar, frame: int | None = None,
                         pose: BodyPose | None = None) -> CanonicalGaussians:
         """Locks, then colour edits, on decoded Gaussians (all, or those of ``canon.index``)."""
         if not any(isinstance(e.op, (Lock, Recolour, Redo)) for e in self.entries):
