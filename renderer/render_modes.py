@@ -30,6 +30,12 @@ VISIBILITY
     ``RGB(39,131,177)``.
 
 The returned images carry the accumulated alpha ``A`` in their fourth channel in every mode.
+
+Highlight (the studio's edit selection, ``Snapshot.highlight``: 1 on selected rows)
+    in every mode a highlighted Gaussian's colour is mixed towards a bright orange
+    (``HIGHLIGHT_RGB``, weight ``HIGHLIGHT_MIX``) -- towards yellow in the visibility mode, whose
+    seen colour is orange already, and magenta in the normals mode, whose camera-facing normals are
+    reds, yellows and greens (``RenderMode.highlight_rgb``). No highlight array: no tint.
 """
 
 from __future__ import annotations
@@ -43,6 +49,10 @@ UNSEEN_RGB8 = (39, 131, 177)
 SEEN_RGB = tuple(c / 255.0 for c in SEEN_RGB8)
 UNSEEN_RGB = tuple(c / 255.0 for c in UNSEEN_RGB8)
 BAD_NORMAL_RGB = (0.5, 0.5, 0.5)
+HIGHLIGHT_RGB = (1.0, 0.45, 0.0)  # selected Gaussians are mixed towards this (bright orange)
+HIGHLIGHT_VISIBILITY_RGB = (1.0, 0.95, 0.1)  # ... towards this in the visibility mode (yellow)
+HIGHLIGHT_NORMAL_RGB = (1.0, 0.1, 1.0)  # ... and this in the normals mode (magenta)
+HIGHLIGHT_MIX = 0.65
 
 
 class RenderMode(str, Enum):
@@ -60,6 +70,12 @@ class RenderMode(str, Enum):
             return cls(str(value).lower())
         except ValueError:
             raise ValueError(f"unknown render mode {value!r}; choose one of {[m.value for m in cls]}") from None
+
+    @property
+    def highlight_rgb(self) -> tuple[float, float, float]:
+        """The colour highlighted (selected) Gaussians are mixed towards in this mode."""
+        return {RenderMode.VISIBILITY: HIGHLIGHT_VISIBILITY_RGB, RenderMode.NORMAL: HIGHLIGHT_NORMAL_RGB}.get(
+            self, HIGHLIGHT_RGB)
 
     @property
     def label(self) -> str:
@@ -88,11 +104,23 @@ def splat_colors(
     normals: np.ndarray | None = None,
     visibility: np.ndarray | None = None,
     depth_range: tuple[float, float] = (0.0, 1.0),
+    highlight: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Per-Gaussian colour (N,3) float64 of ``mode`` for a camera with world-to-camera ``R, t``.
+    """Per-Gaussian colour (N,3) float64 of ``mode`` for a camera with world-to-camera ``R, t``;
+    ``highlight`` ((N,) nonzero = selected) mixes the selected ones towards ``mode.highlight_rgb``.
 
     This is the CPU definition of the colour code; the vertex shader implements the same."""
     mode = RenderMode.parse(mode)
+    out = _mode_colors(mode, R=R, t=t, means=means, colors=colors, normals=normals, visibility=visibility,
+                       depth_range=depth_range)
+    if highlight is None:
+        return out
+    sel = np.asarray(highlight).reshape(out.shape[0]) != 0
+    tint = (1.0 - HIGHLIGHT_MIX) * out + HIGHLIGHT_MIX * np.asarray(mode.highlight_rgb, np.float64)
+    return np.where(sel[:, None], tint, out)
+
+
+def _mode_colors(mode: RenderMode, *, R, t, means, colors, normals, visibility, depth_range) -> np.ndarray:
     R = np.asarray(R, np.float64)
     t = np.asarray(t, np.float64)
     means = np.asarray(means, np.float64)

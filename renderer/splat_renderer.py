@@ -36,6 +36,15 @@ rasterizer keeps them; the latter would blow up into screen-filling blobs in a v
 depth order uses a 16-bit key (ties within (zmax - zmin)/65535 keep index order).
 4. Optional overlay (mesh / skeleton), then readback (offscreen) or nothing (window).
 
+Highlight (the studio's edit selection): ``Snapshot.highlight`` ((N,) uint8, 1 = selected) goes up as
+one float vertex attribute per Gaussian (4 bytes each), fetched by the element index like the data
+texture; the ``u_highlight`` uniform switches the tint on (any row selected) or off (no array, or
+nothing selected). A snapshot that differs from the current one only in ``highlight`` (the same
+array objects and version, e.g. ``dataclasses.replace(snap, highlight=h)``) uploads only that
+attribute (``stats.highlight_upload_ms``), so a brush stroke does not re-pack the Gaussians.
+Selected Gaussians are mixed towards ``RenderMode.highlight_rgb`` in every mode (orange; yellow in
+the visibility mode, magenta in the normals mode).
+
 Offscreen images are (H, W, 4) float32 (or uint8), top row first. A float32 render target is
 the default so that blending thousands of splats does not accumulate 8-bit rounding.
 
@@ -52,6 +61,7 @@ One renderer per context; call ``release()`` to free its GL objects.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -64,10 +74,18 @@ from reconstruct.snapshot import Snapshot
 
 from .framebuffer import OffscreenTarget
 from .overlay import OverlayRenderer, OverlayStyle
-from .render_modes import SEEN_RGB, SHADER_CODE, SHADER_DEPTH_RAW, UNSEEN_RGB, RenderMode
+from .render_modes import (
+    HIGHLIGHT_MIX,
+    SEEN_RGB,
+    SHADER_CODE,
+    SHADER_DEPTH_RAW,
+    UNSEEN_RGB,
+    RenderMode,
+)
 from .sorting import SortCache
 
 TEXELS_PER_SPLAT = 5
+SNAPSHOT_FIELDS = tuple(f.name for f in dataclasses.fields(Snapshot) if f.name != "highlight")
 SKIP_REASONS = ("nonfinite", "bad_scale", "bad_rotation", "transparent", "behind_camera", "near_plane",
                 "beyond_far", "overflow")
 
@@ -86,6 +104,8 @@ class RenderStats:
     data_uploaded: bool = False  # the last render (or set_snapshot) uploaded the Gaussian data
     sorted: bool = False  # the last render sorted (view or data changed)
     data_upload_ms: float = 0.0  # sanitize + pack + texture write, when it happened
+    n_highlighted: int = 0  # uploaded Gaussians with the highlight set (0: tint off)
+    highlight_upload_ms: float = 0.0  # the last upload of the highlight attribute
     sort_ms: float = 0.0  # depth, culling and radix sort (0 when skipped)
     upload_ms: float = 0.0  # per-frame upload of the sorted ids (0 when skipped)
     draw_ms: float = 0.0  # issue + finish of the splat draw (finish only offscreen / profile)
@@ -138,6 +158,10 @@ class SplatRenderer:
         self._per_row = 1
         self._ids: moderngl.Buffer | None = None
         self._vao: moderngl.VertexArray | None = None
+        self._hl_buf: moderngl.Buffer | None = None  # per-Gaussian highlight attribute (float32)
+        self._hl_on = False
+        self._rows: slice | np.ndarray = slice(None)  # snapshot rows kept by sanitizing, in upload order
+        self._n_valid = 0
         self._snap: Snapshot | None = None
         self._snap_version = None
         self._data_key = 0  # increments on every data change (sort cache key)
@@ -161,8 +185,13 @@ class SplatRenderer:
         if snap is self._snap and snap.version == self._snap_version:
             self.stats.data_uploaded = False
             return False
+        if self._same_arrays(snap):  # only the highlight changed: upload that alone
+            self._snap = snap
+            self._set_highlight(snap.highlight)
+            self.stats.data_uploaded = False
+            return False
         t0 = time.perf_counter()
-        storage, per_row, m, skipped, bad_normals, n_in = self._sanitize(snap)
+        storage, per_row, m, skipped, bad_normals, n_in, rows = self._sanitize(snap)
         self._upload(storage, per_row)
         packed = storage[:m]
         # CPU copies for culling and sorting (structure of arrays)
@@ -172,6 +201,7 @@ class SplatRenderer:
         self._quats = packed[:, 2, :]
         self._base_skipped = skipped
         self._snap, self._snap_version = snap, snap.version
+        self._rows, self._n_valid = rows, m
         self._data_key += 1
         self._overlay_key = None  # mesh / skeleton re-upload on next overlay render
         st = self.stats
@@ -180,7 +210,47 @@ class SplatRenderer:
         st.data_uploaded = True
         st.data_upload_ms = (time.perf_counter() - t0) * 1e3
         st.skipped = dict(skipped)
+        self._set_highlight(snap.highlight)
         return True
+
+    def _same_arrays(self, snap: Snapshot) -> bool:
+        """``snap`` is the current snapshot but for ``highlight``: every other field the very same
+        object (``dataclasses.replace(current, highlight=h)``)."""
+        cur = self._snap
+        return (cur is not None and snap.version == self._snap_version
+                and all(getattr(snap, k) is getattr(cur, k) for k in SNAPSHOT_FIELDS))
+
+    def _set_highlight(self, highlight) -> None:
+        """The per-Gaussian highlight attribute of the current snapshot (None: tint off)."""
+        t0 = time.perf_counter()
+        st = self.stats
+        n_in, m = st.n_input, self._n_valid
+        if highlight is None or m == 0:
+            self._hl_on = False
+            st.n_highlighted = 0
+            return
+        h = np.asarray(highlight)
+        if h.shape != (n_in,):
+            raise ValueError(f"Snapshot.highlight: expected shape ({n_in},), found {h.shape}")
+        flags = (h[self._rows] != 0).astype(np.float32)
+        st.n_highlighted = int(np.count_nonzero(flags))
+        self._hl_on = st.n_highlighted > 0
+        if self._hl_on:
+            self._ensure_highlight_buffer(m)
+            self._hl_buf.write(flags.tobytes())
+        st.highlight_upload_ms = (time.perf_counter() - t0) * 1e3
+
+    def _ensure_highlight_buffer(self, m: int) -> None:
+        """A highlight buffer for at least ``m`` Gaussians (the vertex array is rebuilt with it)."""
+        nbytes = max(4 * m, 1024)
+        if self._hl_buf is not None and self._hl_buf.size >= nbytes:
+            return
+        if self._vao is not None:
+            self._vao.release()
+            self._vao = None
+        if self._hl_buf is not None:
+            self._hl_buf.release()
+        self._hl_buf = self.ctx.buffer(reserve=nbytes + nbytes // 4, dynamic=True)
 
     def _sanitize(self, snap: Snapshot):
         n = len(snap)
@@ -258,7 +328,7 @@ class SplatRenderer:
         else:
             bad_normals = m
 
-        return storage, per_row, m, skipped, bad_normals, n
+        return storage, per_row, m, skipped, bad_normals, n, idx
 
     def _upload(self, storage: np.ndarray, per_row: int) -> None:
         """One texture write of ``storage`` ((rows * per_row, 5, 4) float32)."""
@@ -343,13 +413,18 @@ class SplatRenderer:
             if self._ids is None or self._ids.size < nbytes:
                 if self._vao is not None:
                     self._vao.release()
+                    self._vao = None
                 if self._ids is not None:
                     self._ids.release()
                 self._ids = ctx.buffer(reserve=max(nbytes + nbytes // 4, 1024), dynamic=True)
-                self._vao = ctx.vertex_array(self.prog, [], index_buffer=self._ids, index_element_size=4)
             self._ids.write(res.order.tobytes())
             self._uploaded_order = res.order
             uploaded = True
+        if n:
+            self._ensure_highlight_buffer(self._n_valid)
+            if self._vao is None:
+                self._vao = ctx.vertex_array(self.prog, [(self._hl_buf, "f4", "a_highlight")], index_buffer=self._ids,
+                                             index_element_size=4)
         st.upload_ms = (time.perf_counter() - t0) * 1e3 if uploaded else 0.0
         st.n_drawn = n
 
@@ -427,6 +502,10 @@ class SplatRenderer:
         p["u_depth_range"].value = (float(depth_range[0]), float(depth_range[1]))
         p["u_seen"].value = SEEN_RGB
         p["u_unseen"].value = UNSEEN_RGB
+        p["u_highlight"].value = 1 if self._hl_on else 0
+        hl_mode = next((m for m, c in SHADER_CODE.items() if c == code), RenderMode.RGB)
+        p["u_highlight_rgb"].value = hl_mode.highlight_rgb
+        p["u_highlight_mix"].value = HIGHLIGHT_MIX
 
     def _draw_overlay(self, camera: Camera, fbo, style: OverlayStyle) -> None:
         if self.overlay is None:
@@ -447,14 +526,14 @@ class SplatRenderer:
     def release(self) -> None:
         if self._released:
             return
-        for obj in (self._vao, self._ids, self._tex, self.prog):
+        for obj in (self._vao, self._ids, self._hl_buf, self._tex, self.prog):
             if obj is not None:
                 obj.release()
         if self._target is not None:
             self._target.release()
         if self.overlay is not None:
             self.overlay.release()
-        self._vao = self._ids = self._tex = None
+        self._vao = self._ids = self._hl_buf = self._tex = None
         self._target = None
         self.overlay = None
         self._released = True

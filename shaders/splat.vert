@@ -9,6 +9,9 @@
 // OpenCV camera x_cam = R x + t; u = fx x/z + cx, v = fy y/z + cy (pixel centres at +0.5);
 // cov2d = J W cov3d W^T J^T + eps2d I with J the pinhole Jacobian at x/z, y/z clamped to the
 // frustum widened by 30 % on each side; box = pixels within ceil(3 sqrt(lambda_max)) of the mean.
+// Highlight (the studio's edit selection): one float vertex attribute per Gaussian, fetched by the
+// element index like the texture (1 = selected); with u_highlight on, a selected Gaussian's colour is
+// mixed towards u_highlight_rgb in every mode (not in the raw depth pass).
 
 uniform sampler2D u_data;
 uniform int u_per_row;            // Gaussians per texture row
@@ -28,6 +31,11 @@ uniform int u_mode;               // render_modes.SHADER_CODE
 uniform vec2 u_depth_range;       // near (white), far (black) for the depth mode
 uniform vec3 u_seen;
 uniform vec3 u_unseen;
+uniform int u_highlight;          // 1: tint the Gaussians whose a_highlight is set
+uniform vec3 u_highlight_rgb;
+uniform float u_highlight_mix;
+
+in float a_highlight;             // per Gaussian (by element index): 1 = selected
 
 out vec2 vg_center;               // projected mean, pixels
 out vec4 vg_axes;                 // quad half-axes (pixels): corner = center +- axes.xy +- axes.zw
@@ -124,5 +132,6 @@ void main() {
     } else {
         col = vec3(p.z);  // raw camera depth (render_depth)
     }
+    if (u_highlight == 1 && u_mode != 5 && a_highlight > 0.5) col = mix(col, u_highlight_rgb, u_highlight_mix);
     vg_color = vec4(col, opacity);
 }
