@@ -2,7 +2,8 @@
 written to ``OUT.state.json`` and widget rectangles to ``OUT.rects.json`` every few frames.
 
 Requests from the test are files: ``OUT.shot_NAME.req`` saves a screenshot ``OUT.NAME.png`` of the
-current frame, ``OUT.quit`` closes the window (as the user closing it would).
+current frame, ``OUT.quit`` closes the window (as the user closing it would), ``OUT.dump_NAME.req``
+writes ``OUT.NAME.npz``: the edit selection and the latest snapshot's arrays (tests/test_studio_edit.py).
 
 usage: python tests/studio_driver.py OUT SCENE [RUN]"""
 
@@ -38,7 +39,37 @@ def state_of(app) -> dict:
         "drawn": list(app.last_drawn_snapshot) if app.last_drawn_snapshot else None,
         "stage2_message": s.stage2_message, "error": s.error,
         "export_message": app.export.message, "screenshots": app.export.saved_screenshots,
+        "edits": edit_state(app),
     }
+
+
+def edit_state(app) -> dict:
+    """The editor as the tests see it: tool, selection, the edit list, a request in flight."""
+    ed = getattr(app, "edits", None)
+    if ed is None or ed.session is None:
+        return {"error": getattr(ed, "error", None) if ed is not None else None}
+    s = ed.session
+    return {"tool": ed.tools.tool, "panel": bool(app.view.edit_panel), "selected": ed.selected_count,
+            "applied": [[e.id, e.op.name, e.count] for e in s.entries()],
+            "undone": [[e.id, e.op.name, e.count] for e in s.undone],
+            "pending": ed.busy, "message": ed.panel.message, "result": ed.panel.result,
+            "strokes": len(ed.timings)}
+
+
+def dump_arrays(app, path) -> None:
+    """The selection and the latest snapshot's arrays (``ids``: -1 when the snapshot has no ids)."""
+    import numpy as np
+
+    snap = app.latest_snapshot()
+    s = app.edits.session
+    arrays = {k: getattr(snap, k) for k in ("means", "scales", "rotations", "colors", "opacities", "normals",
+                                             "visibility")}
+    arrays["ids"] = np.full(1, -1) if snap.ids is None else np.asarray(snap.ids)
+    arrays["selection"] = s.selection.copy()
+    arrays["version"] = np.asarray(snap.version)
+    tmp = Path(str(path) + ".tmp.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
 
 
 def main(out: str, scene: str, run=None) -> int:
@@ -55,6 +86,10 @@ def main(out: str, scene: str, run=None) -> int:
         for req in sorted(out_p.parent.glob(out_p.name + ".shot_*.req")):
             name = req.name[len(out_p.name) + len(".shot_"):-len(".req")]
             app.request_screenshot(f"{out}.{name}.png")
+            req.unlink()
+        for req in sorted(out_p.parent.glob(out_p.name + ".dump_*.req")):
+            name = req.name[len(out_p.name) + len(".dump_"):-len(".req")]
+            dump_arrays(app, f"{out}.{name}.npz")
             req.unlink()
         if Path(out + ".quit").exists():
             app.close()

@@ -6,7 +6,13 @@ methods (``pause``, ``single_step``, ``request_save``, ``start_stage2``, ``set_s
 ``status()`` (a ``TrainerStatus`` the thread publishes after each step), ``history()`` and the
 latest snapshot. Everything that changes the trainer happens on the trainer thread between
 steps: Stage II settings, the switch to the Stage II plan, and ``call_between_steps`` functions
-(e.g. a frozen copy of the avatar for an export)."""
+(e.g. a frozen copy of the avatar for an export).
+
+Edits (docs/editing.md): the thread owns one ``EditSession`` (``edit_session``: made with the
+thread, it loads ``RUN/edits`` and autosaves there; its plan follows the switch to Stage II). The GUI
+changes only the session's selection; ``edit(fn)`` runs ``fn(session)`` (apply, undo, redo) between
+steps and publishes the live snapshot again, and ``guidance_steps(n)`` runs n Stage II guidance
+steps; both answer through a Future."""
 
 from __future__ import annotations
 
@@ -124,6 +130,79 @@ class TrainerThread:
         self._status = self._make_status()
         n = len(trainer.scene.frames)
         self.controls.update(frame_index=min(max(0, self.controls.get().frame_index), n - 1))
+        self.edit_session = None  # reconstruct.edits.session.EditSession (None: edit_error says why)
+        self.edit_error: str | None = None
+        self._make_edit_session()
+
+    # ----- edits ----------------------------------------------------------------------------
+    def _make_edit_session(self) -> None:
+        """The session over the trainer's avatar (before the loop starts: no step runs meanwhile).
+        It loads the run folder's edits (the avatar holds them already when the run was resumed)."""
+        from reconstruct.edits.session import EditSession
+
+        t = self.trainer
+        try:
+            self.edit_session = EditSession(t.state, run_dir=t.run_dir, plan=t.plan if t.stage >= 2 else None)
+        except (ValueError, OSError) as exc:  # a malformed edits file: editing is off, training goes on
+            self.edit_error = f"editing is off: {exc}"
+
+    def _follow_stage(self) -> None:
+        """The edit session's plan is the running Stage II plan (None in Stage I)."""
+        t, session = self.trainer, self.edit_session
+        if session is not None:
+            plan = t.plan if t.stage >= 2 else None
+            if session.plan is not plan:
+                session.plan = plan
+
+    def edit(self, fn) -> Future:
+        """Run ``fn(edit_session)`` between two steps (apply / undo / redo: the session saves
+        ``RUN/edits``), then publish the live snapshot again so the next frame shows the edit. The
+        Future holds ``fn``'s result or its exception."""
+        def call(trainer):
+            if self.edit_session is None:
+                raise RuntimeError(self.edit_error or "no edit session")
+            self._follow_stage()
+            out = fn(self.edit_session)
+            self._publish(self.controls.get())
+            self._status = self._make_status()
+            return out
+        return self.call_between_steps(call)
+
+    def guidance_steps(self, n: int) -> Future:
+        """``n`` Stage II guidance steps (the plan's canonical / observation steps, mixed by its
+        canonical ratio; they train the unseen and redone regions towards the prior) between two
+        steps, then a new snapshot. The Future holds the number of steps taken."""
+        n = int(n)
+
+        def call(trainer):
+            plan = trainer.plan
+            if trainer.stage < 2:
+                raise ValueError("guidance steps need Stage II: start it first")
+            if getattr(plan, "sds_note", None):
+                raise ValueError(f"no guidance steps: {plan.sds_note}")
+            s2 = plan.settings
+            spaces = [k for k, on in (("canonical", s2.canonical_sds), ("observation", s2.observation_sds)) if on]
+            if not spaces:
+                raise ValueError("guidance steps are off in both spaces (Stage II settings)")
+
+            def guidance_kind(rng):
+                if len(spaces) == 1:
+                    return spaces[0]
+                return "canonical" if rng.random() < s2.canonical_ratio else "observation"
+
+            plan.next_kind = guidance_kind  # this instance only, for these steps
+            try:
+                for _ in range(max(0, n)):
+                    out = trainer.step()
+                    if trainer.step_count % self.log_every == 0:
+                        trainer.log_step(out)
+                    self._record()
+            finally:
+                del plan.next_kind
+            self._publish(self.controls.get())
+            self._status = self._make_status()
+            return n
+        return self.call_between_steps(call)
 
     # ----- actions (any thread) ---------------------------------------------------------------
     def pause(self, paused: bool = True) -> None:
@@ -359,6 +438,7 @@ class TrainerThread:
         self._stage2_applied = c.stage2_version  # the settings went into the new plan
         self.stage2_message = None
         self.published = None
+        self._follow_stage()  # edits made from now on follow the Stage II plan (views, pseudo-colours)
 
     def _apply_stage2_settings(self, c: Controls) -> None:
         """The GUI's Stage II settings for the running plan, validated as a whole first; view

@@ -32,3 +32,4 @@ class ViewState:
     motion: MotionPanelState = field(default_factory=MotionPanelState)  # the Pose panel's motion file
     beside: PlyFileState = field(default_factory=PlyFileState)  # a .ply shown beside the live avatar
     show_beside: bool = True
+    edit_panel: bool = False  # the Edit panel takes the left column (Training, Stage II hidden meanwhile)

@@ -1,7 +1,9 @@
 """The studio window: glfw (OpenGL 3.3 core) + imgui-bundle's native glfw/opengl3 backends (and
 implot) + moderngl on the same context. The SplatRenderer draws the trainer's latest snapshot
-into an offscreen framebuffer (only when the snapshot, camera, mode or size changed) that is
-blitted to the window every frame; the imgui panels are drawn on top.
+into an offscreen framebuffer (viewport.py: only when the snapshot, the edit selection's highlight,
+camera, mode or size changed) that is blitted to the window every frame; the imgui panels are
+drawn on top. The editor (selection tools, highlight, edit requests) is ``EditController``
+(edit_controller.py, edit_input.py, edit_tools.py; docs/editing.md).
 
 Threads: the GL thread (this loop) only reads the trainer thread's latest snapshot and status and
 calls its action methods; the trainer thread steps the trainer and applies the actions between
@@ -39,7 +41,8 @@ import glfw
 
 from renderer.render_modes import RenderMode
 
-from . import panels
+from . import edit_input, panels
+from .edit_controller import EditController
 from .export_job import ExportJob, ExportPanelState
 from .footage import FootageController
 from .jobs import take_finished
@@ -49,6 +52,8 @@ from .pacing import FramePacer
 from .panels.stage2 import default_settings
 from .trainer_thread import TrainerThread
 from .view_state import POSE_SOURCES, ViewState
+from .viewport import GroundTruthImage, SplatView
+from .viewport import to_rgb8 as _to_rgb8
 
 NO_DISPLAY_MESSAGE = ("wonderhuman-studio: no display to open the studio window on (DISPLAY/WAYLAND_DISPLAY unset "
                       "or the window could not open); headless: `wonderhuman-studio demo`, `train` or `export`")
@@ -85,13 +90,6 @@ def open_window(width: int, height: int, title: str = "WonderHuman Studio"):
     return win
 
 
-def _to_rgb8(image: np.ndarray) -> np.ndarray:
-    image = np.asarray(image)
-    if image.dtype != np.uint8:
-        image = (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    return np.ascontiguousarray(image[..., :3])
-
-
 class StudioApp:
     """One studio window: the view state, the renderer and the panels' actions. ``script``
     callbacks of ``run_studio`` get this object."""
@@ -118,11 +116,8 @@ class StudioApp:
         self.frame_count = 0
         self.should_close = False
         self._screenshots: list[Path] = []
-        self._fbo = None
-        self._fbo_size = None
-        self._draw_key = None
-        self._gt_tex = None
-        self._gt_key = None
+        self.splat_view = SplatView(ctx, self.renderer)  # the splats' cached framebuffer (viewport.py)
+        self.gt_image = GroundTruthImage(ctx)
         self.last_drawn_snapshot = None  # (version, space, frame_index, step) of what is on screen
         self.rects: dict[str, list[float]] = {}
         self._fb_size, self._fb_size_frame = (0, 0), -1
@@ -134,6 +129,8 @@ class StudioApp:
         self._beside_key = None
         self._beside_snap = None
         self._frame_beside = False
+        self.edits = EditController(self)  # selection tools, highlight, edits through the trainer's queue
+        self.drawn_view = None  # (camera, avatar snapshot) of the last splat render: what strokes select on
 
     # ----- what scripts and tests read -------------------------------------------------------
     @property
@@ -178,7 +175,7 @@ class StudioApp:
         """Something moves without input: playback, an export, a motion file being read, footage
         being prepared."""
         return (self.view.playing or self.exporting or self.view.motion.loading or self.view.beside.loading
-                or self.footage.busy)
+                or self.footage.busy or self.edits.busy)
 
     def attach_trainer(self, trainer, run_folder=None, run_lock=None) -> None:
         """Show and train ``trainer`` from now on (the footage panel's "Train on it": the previous
@@ -188,9 +185,11 @@ class StudioApp:
         self.scene = trainer.scene
         self.background = tuple(float(c) for c in trainer.config.background)
         self.view = ViewState()
+        self.edits = EditController(self)
+        self.drawn_view = None
         self.cache.clear()
         self._framed = False
-        self._gt_key = None
+        self.gt_image.forget()
         self.orbit.snap_to(self.scene.frames[0].camera)
         thread.set_stage2_settings(self.stage2_settings)
         thread.start()
@@ -412,7 +411,7 @@ class StudioApp:
                                    history=self.trainer.history, history_len=self.trainer.history_len,
                                    stage2_settings=self.stage2_settings, export=self.export,
                                    num_pose_frames=self.num_pose_frames, fps=self.fps, cache=self.cache,
-                                   mark=self.mark, footage=self.footage, texture=self.texture)
+                                   mark=self.mark, footage=self.footage, texture=self.texture, edits=self.edits)
 
     def change_key(self) -> tuple:
         """What an idle window would show differently: new training values, snapshot, messages."""
@@ -420,7 +419,7 @@ class StudioApp:
         m, b = self.view.motion, self.view.beside
         return (self.trainer.history_len, self.latest_snapshot().version, st.stage, st.error, st.stage2_message,
                 st.last_saved, st.paused, m.loading, m.message, m.loaded is not None and m.loaded.key, b.loading,
-                b.message, id(b.loaded), self.view.show_beside)
+                b.message, id(b.loaded), self.view.show_beside, self.view.edit_panel, self.edits.change_key())
 
     def pump_export(self) -> None:
         job = self.export.job
@@ -432,8 +431,13 @@ class StudioApp:
             print(f"wonderhuman-studio: {self.export.message}", file=sys.stderr)
 
     def handle_input(self) -> None:
-        if apply_mouse(self.orbit, self.pacer, self.framebuffer_size()[1]):
+        """Mouse and keys: a selection tool's strokes (its left drags do not orbit), the orbit,
+        H (panels), Ctrl+Z / Ctrl+Shift+Z (edits)."""
+        _, fh, vw, vh = self.view_size()
+        tool_has_left = edit_input.handle_mouse(self.edits, (vw, vh))
+        if apply_mouse(edit_input.NoLeftDrag(self.orbit) if tool_has_left else self.orbit, self.pacer, fh):
             self.view.show_gui = not self.view.show_gui
+        edit_input.handle_keys(self.edits)
 
     def advance_playback(self) -> None:
         now = time.perf_counter()
@@ -454,22 +458,6 @@ class StudioApp:
             return None
         return self.scene.frames[v.frame_index].image
 
-    def _gt_texture(self):
-        image = self._ground_truth()
-        if image is None:
-            return None
-        key = (id(image), image.shape)
-        if key != self._gt_key:
-            rgb = _to_rgb8(image)
-            h, w = rgb.shape[:2]
-            if self._gt_tex is None or self._gt_tex.size != (w, h):
-                if self._gt_tex is not None:
-                    self._gt_tex.release()
-                self._gt_tex = self.ctx.texture((w, h), 3)
-            self._gt_tex.write(rgb.tobytes())
-            self._gt_key = key
-        return self._gt_tex
-
     def framebuffer_size(self) -> tuple[int, int]:
         """The window's framebuffer size, asked of glfw once per frame (an X round trip)."""
         if self._fb_size_frame != self.frame_count:
@@ -484,27 +472,19 @@ class StudioApp:
         return fw, fh, (max(1, fw // 2) if side else fw), fh
 
     def draw_ground_truth(self) -> None:
-        """The ground-truth image in the right half (imgui background draw list), aspect kept."""
-        if not self.view.show_ground_truth:
-            return
-        tex = self._gt_texture()
-        if tex is None:
-            return
-        fw, fh, vw, _ = self.view_size()
-        w, h = tex.size
-        s = min((fw - vw) / w, fh / h)
-        x0 = vw + 0.5 * ((fw - vw) - s * w)
-        y0 = 0.5 * (fh - s * h)
-        dl = imgui.get_background_draw_list()
-        dl.add_image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(x0, y0), imgui.ImVec2(x0 + s * w, y0 + s * h))
-        dl.add_text(imgui.ImVec2(vw + 8, fh - 22), 0xFFFFFFFF, "ground truth")
+        """The ground-truth image in the right half, aspect kept."""
+        if self.view.show_ground_truth:
+            fw, fh, vw, _ = self.view_size()
+            self.gt_image.draw(self._ground_truth(), (fw, fh), vw)
 
     def draw_scene(self) -> None:
-        """Splats into the cached offscreen framebuffer when anything changed, then blit to the window."""
+        """Splats (with the selection highlighted) into the cached offscreen framebuffer when anything
+        changed (viewport.SplatView), then copied to the window."""
         fw, fh, vw, vh = self.view_size()
         if fw <= 0 or fh <= 0:
             return
-        snap = self.drawn_snapshot()
+        avatar = self.latest_snapshot()
+        snap = self.edits.highlighted(self.drawn_snapshot(), avatar)
         if self._frame_beside and len(snap):
             self.orbit.look_at_bounds(snap.means)
             self._frame_beside = False
@@ -512,25 +492,13 @@ class StudioApp:
             self.orbit.snap_to(self.scene.frames[0].camera, pivot=snap.means.mean(0)) if snap.space == "observation" \
                 else self.orbit.look_at_bounds(snap.means)
             self._framed = True
-        if self._fbo_size != (vw, vh):
-            if self._fbo is not None:
-                self._fbo.release()
-            self._fbo = self.ctx.simple_framebuffer((vw, vh), components=4)
-            self._fbo_size = (vw, vh)
-            self._draw_key = None
         cam = self.orbit.to_camera(vw, vh)
         mode = self.view.mode
         background = self.background if mode is RenderMode.RGB else (0.12, 0.12, 0.14)
-        key = (snap.version, id(snap), mode, vw, vh, cam.K.tobytes(), cam.R.tobytes(), cam.t.tobytes(), background)
-        if key != self._draw_key:
-            self.renderer.set_snapshot(snap)
-            self.renderer.render(cam, mode=mode, background=background, target=self._fbo)
-            self._draw_key = key
+        if self.splat_view.draw(snap, cam, mode, background):
             self.last_drawn_snapshot = (snap.version, snap.space, snap.frame_index, snap.step)
-        self.ctx.screen.use()
-        if vw != fw:
-            self.ctx.clear(0.08, 0.08, 0.09)
-        self.ctx.copy_framebuffer(self.ctx.screen, self._fbo)
+            self.drawn_view = (cam, avatar)
+        self.splat_view.blit((fw, fh))
 
     def frame(self, script=None, *, screenshot=None, last: bool = False, rects_path=None) -> None:
         """Draw one frame: panels, export frames, splats, screenshots; then swap."""
@@ -542,18 +510,20 @@ class StudioApp:
         self.poll_motion()
         self.poll_beside()
         self.footage.poll()
+        self.edits.poll()
         self.handle_input()
         self.advance_playback()
         if self.view.show_gui:
             draw_panels(self.panel_context(), STUDIO_PANELS)
         self.draw_ground_truth()
+        edit_input.draw_overlay(self.edits, self.view_size()[2:])
         imgui.render()
         draw_data = imgui.get_draw_data()
         self.pump_export()
         self.draw_scene()
         final = screenshot is not None and (last or self.should_close or glfw.window_should_close(self.window))
-        if (self._screenshots or final) and self._fbo is not None:
-            image = compose_frame(self.ctx, self.framebuffer_size(), draw_data, self._fbo)
+        if (self._screenshots or final) and self.splat_view.fbo is not None:
+            image = compose_frame(self.ctx, self.framebuffer_size(), draw_data, self.splat_view.fbo)
             for path in self._screenshots + ([Path(screenshot)] if final else []):
                 self.save_screenshot(path, image)
         self._screenshots.clear()
@@ -563,6 +533,7 @@ class StudioApp:
         imgui.backends.opengl3_render_draw_data(draw_data)
         self.frame_count += 1
         glfw.swap_buffers(self.window)
+        self.edits.frame_shown()
 
     def save_screenshot(self, path, image: np.ndarray) -> str:
         from reconstruct.atomic import atomic_output
@@ -592,10 +563,8 @@ class StudioApp:
             self.export.job.cancel()
             self.export.job.join(10)
             self.export.job.release()
-        if self._fbo is not None:
-            self._fbo.release()
-        if self._gt_tex is not None:
-            self._gt_tex.release()
+        self.splat_view.release()
+        self.gt_image.release()
         for tex in self._textures.values():
             if tex is not None:
                 tex.release()

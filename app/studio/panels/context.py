@@ -49,3 +49,4 @@ class PanelContext:
     mark: Callable[[str], None] = lambda name: None  # records the last widget's rectangle (GUI tests)
     footage: object | None = None  # app.studio.footage.FootageController (own video or photo -> scene -> training)
     texture: Callable[[str], object | None] = lambda path: None  # a GL texture of an image file (GL thread)
+    edits: object | None = None  # app.studio.edit_controller.EditController (selection tools, edits, undo)
