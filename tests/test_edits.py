@@ -249,6 +249,29 @@ def test_redo_resets_the_region_to_the_prior_appearance(trained):
         trained.step()
 
 
+def test_a_redone_region_takes_no_mirrored_colour(trained, monkeypatch):
+    """What a redo resets to is the wrap fill's low-frequency part: the plan's propagated colours
+    are made with the redone Gaussians marked no_mirror (what no_mirror does to the fill:
+    tests/test_propagation_wrap.py), and undo takes the mark back."""
+    from reconstruct.stage2 import plan as plan_module
+    from reconstruct.stage2.plan import start_stage2
+
+    seen_args = []
+    real = plan_module.wrap_fill_colors
+    monkeypatch.setattr(plan_module, "wrap_fill_colors",
+                        lambda *a, **kw: seen_args.append(kw.get("no_mirror")) or real(*a, **kw))
+    plan = start_stage2(trained, _stage2_cfg(), allow_incomplete=True)
+    assert seen_args[-1] is None
+    state = trained.state
+    s = EditSession(state, plan=plan)
+    s.select_part("torso")
+    torso = s.selection.copy()
+    s.apply(Redo())
+    np.testing.assert_array_equal(seen_args[-1], torso)
+    s.undo()
+    assert seen_args[-1] is None and state.edits.redone is None
+
+
 # ----- the run folder ----------------------------------------------------------------------------
 def _run_folder(trained, tmp_path):
     from reconstruct.run_folder import RunFolder

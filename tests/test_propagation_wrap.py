@@ -75,6 +75,26 @@ def test_checks_continue_with_their_left_right_phase():
     assert agree.mean() > 0.9
 
 
+def test_no_mirror_regions_take_the_low_frequency_fill_only():
+    # the checks' back is the front's mirror; a region marked no_mirror (a redo) gets the
+    # same-height fill instead, everything else is as before
+    pos, th = cylinder()
+    a = np.sin(pos[:, 2] * 2 * np.pi / 0.1) > 0
+    b = np.sin(pos[:, 0] * 2 * np.pi / 0.1) > 0
+    truth = np.where((a ^ b)[:, None], RED, WHITE)
+    seen = seen_front(th, 95)
+    cfg = WrapFillConfig(smooth_sweeps=0)
+    parts = np.zeros(len(pos), int)
+    region = ~seen & (np.abs(pos[:, 0]) < 0.06) & (np.abs(pos[:, 2] - 1.25) < 0.1)
+    with_mirror = wrap_fill_colors(pos, parts, seen, truth, None, cfg).numpy()
+    out = wrap_fill_colors(pos, parts, seen, truth, None, cfg, no_mirror=region).numpy()
+    no_mirror_cfg = WrapFillConfig(smooth_sweeps=0, no_mirror_parts=tuple(PART_INDEX))
+    low_only = wrap_fill_colors(pos, parts, seen, truth, None, no_mirror_cfg).numpy()
+    np.testing.assert_array_equal(out[~region], with_mirror[~region])
+    np.testing.assert_array_equal(out[region], low_only[region])
+    assert np.abs(out[region] - with_mirror[region]).max() > 0.3  # the mirror step did change the region
+
+
 def test_head_back_is_hair_not_face():
     # a sphere-ish head: face in front (|theta| < 60 deg, below the hairline), hair elsewhere
     pos, th = cylinder(radius=0.09, height=0.22, n_theta=72, n_z=44, z0=1.55)

@@ -136,13 +136,15 @@ def reliable_seen(seen: np.ndarray, normals: np.ndarray | None, parts: np.ndarra
 
 
 def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | None = None,
-                     config: WrapFillConfig = WrapFillConfig(), normals=None) -> torch.Tensor:
+                     config: WrapFillConfig = WrapFillConfig(), normals=None, no_mirror=None) -> torch.Tensor:
     """(N,3) float32 colours: the reliably seen Gaussians' own, the others (unseen, or seen only
     at grazing incidence when ``normals`` are given) filled as described in the module docstring.
     ``positions``, ``normals``: canonical (N,3); ``parts``: (N,) body-part indices; ``seen``: (N,)
     bool (the trusted flags); ``neighbours``: ``texel_neighbours`` of the Gaussians' texels (for
-    the smoothing; None skips it)."""
+    the smoothing; None skips it). ``no_mirror``: (N,) bool, Gaussians that take the
+    low-frequency fill only, never a mirrored colour (regions a user asked to redo)."""
     cfg = config
+    no_mirror = None if no_mirror is None else _as_np(no_mirror, bool)
     pos = _as_np(positions)
     col = _as_np(colors)
     parts = np.asarray(parts)
@@ -195,6 +197,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         keep = dist <= cfg.max_mirror_distance
         if p < len(PART_NAMES) and PART_NAMES[p] in cfg.no_mirror_parts:
             keep[:] = False
+        if no_mirror is not None:
+            keep &= ~no_mirror[todo]
         if keep.any():
             band_tree = cKDTree(_joint(band_col, band_pos[:, 2], cfg))
             q = _joint(mirrored, query[:, 2], cfg)

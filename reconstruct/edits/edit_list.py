@@ -190,6 +190,14 @@ class EditList:
         return self._cache["erased"]
 
     @property
+    def redone(self) -> np.ndarray | None:
+        """(N,) bool of Gaussians under a redo, None without one: the prior's appearance fills them
+        without mirrored detail (the user said what was carried there is wrong)."""
+        if "redone" not in self._cache:
+            self._cache["redone"] = self._union(Redo)
+        return self._cache["redone"]
+
+    @property
     def locked(self) -> np.ndarray | None:
         if "locked" not in self._cache:
             self._cache["locked"] = self._union(Lock)

@@ -195,19 +195,22 @@ class EditSession:
 
     def _pseudo_colours(self) -> torch.Tensor:
         """The prior's appearance for the current (trial) painted flags: the Stage II plan's
-        propagated colours, or the same propagation from the Stage I flags (eroded)."""
+        propagated colours, or the same wrap-around fill from the Stage I flags (eroded). Regions
+        under a redo take its low-frequency fill only, never a mirrored colour."""
         state = self.state
         if self.plan is not None and hasattr(self.plan, "refresh_visibility"):
             self.plan.refresh_visibility(state)
             return self.plan.pseudo_colors
-        from ..appearance.propagation import erode, propagate_colors
+        from ..appearance.propagation import erode
+        from ..appearance.wrap_fill import wrap_fill_colors
 
         trusted = state.trusted_seen
         if trusted is None:
             trusted = state.edits.paint(torch.as_tensor(erode(state.seen.numpy(), self.neighbours, self.seen_erosion)))
         model = state.model
-        return propagate_colors(model.base_positions, model.parts(), trusted, state.canonical(None).colors,
-                                self.neighbours)
+        return wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted.cpu(),
+                                state.canonical(None).colors.detach().cpu(), self.neighbours,
+                                normals=model.base_normals.cpu(), no_mirror=state.edits.redone)
 
     def undo(self) -> EditEntry | None:
         """Removes the last edit (kept for ``redo``); None when there is none."""

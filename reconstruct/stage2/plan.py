@@ -176,7 +176,8 @@ class Stage2Plan(StagePlan):
         front = Camera.orbit(0.0, 0.0, self.view_config().distance, target, width=512, height=512, fov_y_deg=30.0)
         cam = framed_camera(front, g.means, self.settings.prior_size)
         self.canonical_reference = render_avatar(g, cam, self.guidance_background, normals=False).rgb.clamp(0, 1)
-        self.pseudo_colors = self.propagated_colors(model, state.trusted_seen, canon.colors, nb).to(state.device)
+        self.pseudo_colors = self.propagated_colors(model, state.trusted_seen, canon.colors, nb,
+                                                    no_mirror=state.edits.redone).to(state.device)
         self.visibility_key = state.edits.visibility_key()
         if self.sds_note:
             print(self.sds_note, file=sys.stderr)
@@ -189,7 +190,7 @@ class Stage2Plan(StagePlan):
         self.reselect_views(state)
         nb = texel_neighbours(model.uv_map.texel_rc, model.uv_map.resolution)
         self.pseudo_colors = self.propagated_colors(model, state.trusted_seen, state.canonical(None).colors,
-                                                    nb).to(state.device)
+                                                    nb, no_mirror=state.edits.redone).to(state.device)
         self.visibility_key = state.edits.visibility_key()
 
     def sync_visibility(self, state: AvatarState) -> bool:
@@ -200,15 +201,17 @@ class Stage2Plan(StagePlan):
         self.refresh_visibility(state)
         return True
 
-    def propagated_colors(self, model, seen: torch.Tensor, colors: torch.Tensor, neighbours: np.ndarray) -> torch.Tensor:
+    def propagated_colors(self, model, seen: torch.Tensor, colors: torch.Tensor, neighbours: np.ndarray,
+                          no_mirror: np.ndarray | None = None) -> torch.Tensor:
         """The built-in prior's pseudo-appearance: the unseen Gaussians' colours carried from the
         seen ones (``propagation``: ``wrap``, the wrap-around fill of wrap_fill.py, or ``diffusion``,
-        the earlier screened harmonic fill with mirrored colours)."""
+        the earlier screened harmonic fill with mirrored colours). ``no_mirror``: Gaussians the
+        wrap fill gives its low-frequency fill only (regions under a redo)."""
         colors = colors.detach().cpu()
         if self.settings.propagation == "diffusion":
             return propagate_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours)
         return wrap_fill_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours,
-                                normals=model.base_normals.cpu())
+                                normals=model.base_normals.cpu(), no_mirror=no_mirror)
 
     def reference_image(self, trainer: Trainer, frame: int | None) -> torch.Tensor:
         if frame is None:

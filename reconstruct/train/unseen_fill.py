@@ -55,7 +55,7 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
         trusted = seen
     colors = model.canonical(None).colors.detach().cpu()
     filled = wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted, colors, neighbours,
-                              normals=model.base_normals.cpu())
+                              normals=model.base_normals.cpu(), no_mirror=state.edits.redone)
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
     idx = torch.nonzero(todo).squeeze(1)
     decoded_logit = model.decode_raw(None, None)["color"].detach().cpu()[idx]
