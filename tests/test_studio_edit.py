@@ -7,12 +7,7 @@ Ctrl+Shift+Z, the highlight in a screenshot)."""
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import subprocess
-import sys
 import time
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -29,8 +24,8 @@ from app.studio.edit_tools import (
     rect_box,
 )
 from reconstruct.edits import selection as S
+from studio_window import studio_in_xvfb
 
-ROOT = Path(__file__).resolve().parents[1]
 ARRAYS = ("means", "scales", "rotations", "colors", "opacities", "normals", "visibility")
 
 
@@ -301,130 +296,17 @@ def test_guidance_steps_need_stage2_and_the_session_follows_its_plan(thread):
     assert "next_kind" not in vars(t.plan)  # the plan's own mix again
 
 
-# ----- the window, driven by real input (Xvfb + xdotool) ----------------------------------------------
-def _start_xvfb():
-    r, w = os.pipe()
-    proc = subprocess.Popen(["Xvfb", "-displayfd", str(w), "-screen", "0", "1600x1000x24", "-nolisten", "tcp"],
-                            pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(w)
-    with os.fdopen(r) as f:
-        number = f.readline().strip()
-    assert number, "Xvfb did not report a display"
-    return proc, f":{number}"
-
-
-class Window:
-    """The studio driver's files and xdotool (as tests/test_studio_gui.py drives it)."""
-
-    def __init__(self, out: str, env: dict):
-        self.out, self.env, self.wid = out, env, None
-
-    def state(self) -> dict:
-        try:
-            return json.loads(Path(self.out + ".state.json").read_text())
-        except (OSError, ValueError):
-            return {}
-
-    def rects(self) -> dict:
-        try:
-            return json.loads(Path(self.out + ".rects.json").read_text())["rects"]
-        except (OSError, ValueError, KeyError):
-            return {}
-
-    def wait(self, what, cond, timeout=60.0) -> dict:
-        t0 = time.time()
-        while time.time() - t0 < timeout:
-            st = self.state()
-            if st and cond(st):
-                return st
-            time.sleep(0.1)
-        raise AssertionError(f"timed out waiting for {what}; last state {self.state()}")
-
-    def wait_rect(self, name, timeout=20.0) -> list:
-        t0 = time.time()
-        while name not in self.rects() and time.time() - t0 < timeout:
-            time.sleep(0.1)
-        return self.rects()[name]
-
-    def xdo(self, *args):
-        subprocess.run(["xdotool", *map(str, args)], env=self.env, check=True, timeout=20)
-
-    def move(self, x, y):
-        self.xdo("mousemove", "--window", self.wid, int(round(x)), int(round(y)))
-        time.sleep(0.15)
-
-    def click(self, name):
-        x0, y0, x1, y1 = self.wait_rect(name)
-        self.move(0.5 * (x0 + x1), 0.5 * (y0 + y1))
-        self.xdo("mousedown", 1)
-        time.sleep(0.2)
-        self.xdo("mouseup", 1)
-        time.sleep(0.2)
-
-    def drag(self, a, b, steps=6):
-        self.move(*a)
-        self.xdo("mousedown", 1)
-        time.sleep(0.2)
-        for k in range(1, steps + 1):
-            self.move(a[0] + (b[0] - a[0]) * k / steps, a[1] + (b[1] - a[1]) * k / steps)
-        self.xdo("mouseup", 1)
-        time.sleep(0.2)
-
-    def key(self, keys):
-        """A chord as a person types it: the modifiers held down for a moment around the key (an
-        instant ``xdotool key ctrl+z`` can reach the window's frames with the key and its modifier
-        in different frames)."""
-        *mods, key = keys.split("+")
-        for m in mods:
-            self.xdo("keydown", m)
-        time.sleep(0.2)
-        self.xdo("key", key)
-        time.sleep(0.2)
-        for m in reversed(mods):
-            self.xdo("keyup", m)
-        time.sleep(0.2)
-
-    def file(self, kind, name, timeout=30.0) -> Path:
-        path = Path(f"{self.out}.{name}.{'png' if kind == 'shot' else 'npz'}")
-        path.unlink(missing_ok=True)
-        Path(f"{self.out}.{kind}_{name}.req").touch()
-        t0 = time.time()
-        while not path.exists() and time.time() - t0 < timeout:
-            time.sleep(0.1)
-        assert path.exists(), f"no {path}"
-        return path
-
-    def screenshot(self, name) -> np.ndarray:
-        from PIL import Image
-
-        return np.asarray(Image.open(self.file("shot", name)).convert("RGB"), np.int32)
-
-    def arrays(self, name) -> dict:
-        with np.load(self.file("dump", name)) as z:
-            return {k: z[k] for k in z.files}
-
-
+# ----- the window, driven by real input (Xvfb + xdotool: tests/studio_window.py) ---------------------------
 SCENE = "synthetic:seed=1,frames=3,size=64,azimuths=8,eval_frames=1,texture_size=128"
 RECT = ((560, 300), (720, 520))  # over the avatar's belly and thighs in the 1280 x 800 window
 
 
 @pytest.mark.gl
 def test_rectangle_erase_undo_redo_in_the_window(tmp_path):
-    for tool in ("Xvfb", "xdotool"):
-        assert shutil.which(tool), f"{tool} is missing (scripts/bootstrap.sh installs xvfb and xdotool)"
-    xvfb, display = _start_xvfb()
-    out = str(tmp_path / "gui")
-    run = tmp_path / "run"
-    env = {**os.environ, "DISPLAY": display}
-    app = subprocess.Popen([sys.executable, str(ROOT / "tests" / "studio_driver.py"), out, SCENE, str(run)], env=env,
-                           cwd=str(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    win = Window(out, env)
-    try:
+    with studio_in_xvfb(tmp_path, SCENE, wait_timeout=60.0, move_pause=0.15) as win:
+        run = win.run
         win.wait("training", lambda s: s["step"] >= 2 and s["snapshot"]["n"] > 0, timeout=180)
-        wid = subprocess.run(["xdotool", "search", "--sync", "--name", "WonderHuman Studio"], env=env,
-                             capture_output=True, text=True, timeout=30).stdout.split()
-        assert wid, "no studio window on the display"
-        win.wid = wid[0]
+        win.attach()
         win.click("pause")  # a fixed avatar: the snapshots below differ by the edits alone
         st = win.wait("paused", lambda s: s["controls"]["paused"] and s["snapshot"]["step"] == s["step"]
                       and s["drawn"] and s["drawn"][0] == s["snapshot"]["version"])
@@ -476,19 +358,8 @@ def test_rectangle_erase_undo_redo_in_the_window(tmp_path):
         redone = win.arrays("redone")
         for k in ARRAYS + ("ids",):
             np.testing.assert_array_equal(redone[k], erased[k])
-        Path(out + ".quit").touch()
-        app.wait(timeout=120)
-    except (AssertionError, subprocess.SubprocessError) as exc:
-        if app.poll() is None:
-            app.kill()
-        raise AssertionError(f"{exc}\n--- studio output ---\n{app.stdout.read()[-3000:]}") from None
-    finally:
-        if app.poll() is None:
-            app.kill()
-        log = app.stdout.read() if app.stdout and not app.stdout.closed else ""
-        xvfb.terminate()
-        xvfb.wait(10)
-    assert app.returncode == 0, log
+        win.quit()
+    assert win.app.returncode == 0, win.log
     # the highlight: inside the rectangle the avatar turned orange; elsewhere in the view nothing changed
     (xa, ya), (xb, yb) = RECT
     inside = (slice(ya + 4, yb - 4), slice(xa + 4, xb - 4))
