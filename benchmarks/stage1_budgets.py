@@ -44,8 +44,14 @@ def _run_one(out: Path, seed: int, minutes: float, rate: float, threads: int, ev
     return run
 
 
+def _evals(run: Path) -> list[dict]:
+    from reconstruct.train.metrics_log import MetricsLog
+
+    return MetricsLog(run / "metrics.jsonl").read("eval")
+
+
 def _last_eval(run: Path) -> dict:
-    rows = [json.loads(line) for line in open(run / "metrics.jsonl") if '"kind":"eval"' in line.replace(" ", "")]
+    rows = _evals(run)
     if not rows:
         raise SystemExit(f"{run / 'metrics.jsonl'}: no evaluation records")
     return rows[-1]
@@ -105,7 +111,7 @@ def plot(runs: list[Path], rows: list[dict], rate: float, out: Path) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, (run, row) in enumerate(zip(runs, rows)):
-        evals = [json.loads(line) for line in open(run / "metrics.jsonl") if '"eval"' in line]
+        evals = _evals(run)
         t = [e["step"] / rate / 60 for e in evals]
         c = colors[i % len(colors)]
         for ax, key in zip(axes, ("seen_psnr", "unseen_psnr")):
