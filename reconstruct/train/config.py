@@ -80,6 +80,11 @@ class Stage1Config(StageSettings):
     fill_unseen_ring: int = 1
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # each given-view step composites its target on a uniformly random colour and renders over the
+    # same colour (``background`` is then only the evaluation's): with one fixed black background,
+    # the Gaussians at the silhouette learn the anti-aliased edge's blend with black as their own
+    # colour and show as dark rims from the side and in the unseen fill
+    random_background: bool = True
     crop_margin: int = 16  # render and compare only the body's box (plus margin) of each frame
     # decode, pose and render only the Gaussians whose body normal does not point away from the
     # frame's camera by more than this cosine past grazing (None: all, as the paper)
@@ -122,7 +127,8 @@ class Stage1Config(StageSettings):
     def paper(cls, **kw) -> "Stage1Config":
         """The settings before the Stage I fidelity work (GaussianAvatar's schedule, every Gaussian
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
-        base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False, avatar=AvatarConfig.paper())
+        base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False,
+                    random_background=False, avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
 
     @classmethod
@@ -134,6 +140,7 @@ class Stage1Config(StageSettings):
             if isinstance(d.get("avatar"), dict) and "splat" not in d["avatar"]:
                 d["avatar"] = {**LEGACY_AVATAR, **d["avatar"]}
         d.setdefault("fill_unseen", False)  # recorded before Stage I filled its unseen side
+        d.setdefault("random_background", False)  # recorded before training on random backgrounds
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed
         return super().from_dict(d)

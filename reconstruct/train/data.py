@@ -23,6 +23,12 @@ class FrameTarget:
     box: tuple[int, int, int, int]
 
 
+def composite_on(target: FrameTarget, background: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
+    """The target's image over ``background`` instead of ``current`` (the one it was composited on):
+    the person's pixels are kept, the uncovered share (1 - mask) of every pixel changes colour."""
+    return target.image + (1 - target.mask[..., None]) * (background - current)
+
+
 class TrainingData:
     def __init__(self, scene: Scene, background: torch.Tensor, crop_margin: int,
                  frames: list[int] | None = None) -> None:

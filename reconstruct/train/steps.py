@@ -20,6 +20,7 @@ import torch
 
 from . import losses as L
 from .config import Stage1Config
+from .data import composite_on
 from .render import render_avatar
 
 if TYPE_CHECKING:
@@ -111,11 +112,15 @@ class GivenViewStep(TrainingStep):
         posed = model.pose_with(canon, matrices if index is None else matrices[index])
         if not gaussians_finite(posed):
             return StepOutcome(i, skipped=True)
-        r = render_avatar(posed, tgt.camera, data.background, normals=data.use_normals, first_hit=self.marks_seen,
+        background, image = data.background, tgt.image
+        if getattr(cfg, "random_background", False):
+            background = torch.rand(3, dtype=image.dtype, device=image.device)
+            image = composite_on(tgt, background, data.background)
+        r = render_avatar(posed, tgt.camera, background, normals=data.use_normals, first_hit=self.marks_seen,
                           hit_threshold=cfg.hit_threshold)
         terms = {
-            "rgb": L.mse(r.rgb, tgt.image),
-            "ssim": L.ssim_loss(r.rgb, tgt.image),
+            "rgb": L.mse(r.rgb, image),
+            "ssim": L.ssim_loss(r.rgb, image),
             "offset": L.mean_square(canon.offsets_raw),
             "scale": L.mean_square(canon.scales),
             "features": L.mean_square(canon.features),
@@ -126,7 +131,7 @@ class GivenViewStep(TrainingStep):
             terms["normal"] = L.mse(r.normal, tgt.normal)
             weights["normal"] = cfg.lambda_normal
         if trainer.lpips is not None:
-            terms["lpips"] = trainer.lpips(r.rgb[None].clamp(0, 1), tgt.image[None]).mean()
+            terms["lpips"] = trainer.lpips(r.rgb[None].clamp(0, 1), image[None]).mean()
             weights["lpips"] = cfg.lambda_lpips
         if pose_features is not None:
             terms["pose_features"] = L.mean_square(pose_features)
