@@ -54,12 +54,11 @@ def load_stage1(run: Path):
 
 
 def method_colors(name: str, state, erosion: int) -> tuple[torch.Tensor, torch.Tensor]:
-    from reconstruct.body.uv_map import texel_neighbours
     from reconstruct.appearance.propagation import erode, propagate_colors
     from reconstruct.appearance.wrap_fill import wrap_fill_colors
 
     model = state.model
-    nb = texel_neighbours(model.uv_map.texel_rc, model.uv_map.resolution)
+    nb = model.neighbours()
     trusted = torch.as_tensor(erode(state.seen.numpy(), nb, erosion))
     with torch.no_grad():
         colors = state.canonical(None).colors.detach().cpu()

@@ -2,6 +2,11 @@
 Stage II, seen and unseen views, PSNR and SSIM, per run (e.g. the ablations of the paper's Table 4
 or several seeds), with the front-leak ("tattoo") score where the scene has one.
 
+Stage I ends with its unseen fill (``fill_unseen``), which is evaluated at the last Stage I step.
+Where the run filled and evaluated earlier, the last evaluation before that is reported as
+"Stage I as trained": the unseen side as the paper's Stage I leaves it (evaluate often, e.g.
+``--eval-every 300``, so that it is close to the end of Stage I).
+
     python benchmarks/stage2_report.py runs/exp/s0_full runs/exp/s0_no_canonical_sds ... [--summary]
 """
 
@@ -31,7 +36,10 @@ def summarize(run: Path) -> dict:
         raise ValueError(f"{run}: needs Stage I and Stage II evaluations in metrics.jsonl")
     a, b = s1[-1], s2[-1]
     info = json.loads((run / "run.json").read_text())
+    filled = bool(info.get("config", {}).get("fill_unseen", False))
+    earlier = [r for r in s1 if r["step"] < a["step"]]
     return {"run": run.name, "scene": info.get("scene"), "s1": a, "s2": b,
+            "s1_trained": earlier[-1] if filled and earlier else None,
             "stage2_steps": b["step"] - a["step"], "stage2_seconds": b["elapsed"] - a["elapsed"]}
 
 
@@ -40,16 +48,23 @@ def _leak(rec: dict) -> str:
     return "–" if v is None else f"{v:.3f}"
 
 
+def _trained(r: dict) -> str:
+    t, b = r.get("s1_trained"), r["s2"]
+    if t is None:
+        return "–"
+    return f"{t['unseen_psnr']:.2f} @{t['step']} ({b['unseen_psnr'] - t['unseen_psnr']:+.2f})"
+
+
 def table(rows: list[dict]) -> str:
     head = ("| run | scene | Stage II steps | seen PSNR I → II | seen SSIM I → II | unseen PSNR I → II (Δ) "
-            "| unseen SSIM I → II | front_leak I → II |")
-    lines = [head, "|" + "---|" * 8]
+            "| unseen SSIM I → II | front_leak I → II | unseen PSNR, Stage I as trained (II − it) |")
+    lines = [head, "|" + "---|" * 9]
     for r in rows:
         a, b = r["s1"], r["s2"]
         lines.append(f"| {r['run']} | {r['scene']} | {r['stage2_steps']} | {a['seen_psnr']:.2f} → {b['seen_psnr']:.2f} "
                      f"| {a['seen_ssim']:.4f} → {b['seen_ssim']:.4f} "
                      f"| {a['unseen_psnr']:.2f} → {b['unseen_psnr']:.2f} ({b['unseen_psnr'] - a['unseen_psnr']:+.2f}) "
-                     f"| {a['unseen_ssim']:.4f} → {b['unseen_ssim']:.4f} | {_leak(a)} → {_leak(b)} |")
+                     f"| {a['unseen_ssim']:.4f} → {b['unseen_ssim']:.4f} | {_leak(a)} → {_leak(b)} | {_trained(r)} |")
     return "\n".join(lines)
 
 
@@ -76,6 +91,10 @@ def summary(rows: list[dict]) -> str:
            f"worst: unseen PSNR {worst_u['unseen_psnr']:+.2f} dB ({rows[d.index(worst_u)]['run']}), "
            f"unseen SSIM {min(x['unseen_ssim'] for x in d):+.4f}, seen PSNR {min(x['seen_psnr'] for x in d):+.2f} dB"
            + (f", front_leak II/I at most {max(leaks):.2f}" if leaks else "")]
+    trained = [r["s2"]["unseen_psnr"] - r["s1_trained"]["unseen_psnr"] for r in rows if r.get("s1_trained")]
+    if trained:
+        out.append(f"against Stage I as trained (before its fill), {len(trained)} runs: unseen PSNR mean "
+                   f"{sum(trained) / len(trained):+.2f} dB, worst {min(trained):+.2f} dB")
     return "\n".join(out)
 
 

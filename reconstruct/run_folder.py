@@ -21,8 +21,8 @@ from pathlib import Path
 import torch
 
 from .atomic import atomic_output
-from .train.checkpoint import (CHECKPOINT_NAME, STAGE1_CHECKPOINT_NAME, CheckpointError, load_checkpoint,
-                               migrate_checkpoint)
+from .train.checkpoint import (CHECKPOINT_NAME, STAGE1_CHECKPOINT_NAME, CheckpointError, garment_layer_of,
+                               load_checkpoint, migrate_checkpoint)
 from .train.config import Stage1Config
 from .train.trainer import Trainer
 
@@ -166,7 +166,10 @@ class RunFolder:
             plan = None
         else:
             raise CheckpointError(f"{self.checkpoint}: unknown stage {stage}")
-        trainer = Trainer(scene, cfg, self.path, scene_spec=state.get("scene_spec"), plan=plan)
+        # the checkpoint's garment layer (none in one written before the layer existed), not one
+        # built anew from the config and the masks
+        layer = garment_layer_of(state, str(self.checkpoint))
+        trainer = Trainer(scene, cfg, self.path, scene_spec=state.get("scene_spec"), plan=plan, garment_layer=layer)
         trainer.load_state_dict(state, str(self.checkpoint))
         trainer.state.edits = self.load_edits(trainer.state.model).applied
         return trainer

@@ -2,6 +2,8 @@
 built-in prior's pseudo-appearance (DESIGN.md). No learned weights are involved.
 
 The caller decides which Gaussians count as seen (Stage II: the Stage I flags shrunk by ``erode``).
+A garment layer's Gaussians are one more part (no twin) and diffuse over the layer's own grid
+(``AvatarModel.neighbours``: the layer and the body are not neighbours).
 
 1. Front/back correspondence by body part: an unseen Gaussian takes the colour of the nearest
    seen Gaussian of the same body part to its mirror image through the part's coronal plane

@@ -28,6 +28,11 @@ positions (the body faces -Y, +Z up):
 
 A part with no seen Gaussian borrows from its left/right twin (mirrored in x), then the colours
 are the nearest seen ones of any part.
+
+Parts past the body's (``parts >= len(PART_NAMES)``): a garment layer's Gaussians
+(``garment_layer.GARMENT_PART``) are filled as one more part -- its band is the seen cloth round
+the tube at the same height, its mirror the same row at theta -> pi - theta (through the part's
+coronal plane); it has no left/right twin and no part rule of the lists below applies to it.
 """
 
 from __future__ import annotations

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 SPLATS = ("disc", "sphere")
+GARMENT_LAYER_MODES = ("off", "auto", "on")
 
 
 @dataclass
@@ -40,6 +41,15 @@ class AvatarConfig:
     color_residual_gain: float = 10.0
     feature_init_std: float = 0.01
     pose_feature_channels: int = 64  # P channels in Stage II (same as S so [S,P] has the Stage I width)
+    # loose clothing (docs/loose_clothing.md): a second set of Gaussians on a tube round the hips and
+    # legs, after the body's. "off": none; "auto": built at the start of training when the masks show
+    # loose clothing (garment_layer.volume_hint_from_masks), none for tight clothing; "on": the same,
+    # an error when they show none. Runs recorded before the layer existed load as "off".
+    garment_layer: str = "off"
+    garment_opacity_init: float = 0.5  # initial opacity of the layer's Gaussians (the body's are 1)
+    # a layer Gaussian's opacity is sigmoid(gain x its parameter), the parameter trained at the
+    # decoder's learning rate: the gain is the opacity logit's learning rate relative to the decoder's
+    garment_opacity_gain: float = 10.0
 
     @classmethod
     def paper(cls, **kw) -> "AvatarConfig":
@@ -69,5 +79,11 @@ class AvatarConfig:
                              f"{self.scale_floor}, {self.init_scale_factor} and {self.scale_range}")
         if not 0 < self.disc_thickness <= 1:
             raise ValueError(f"AvatarConfig.disc_thickness must be in (0, 1], found {self.disc_thickness}")
+        if self.garment_layer not in GARMENT_LAYER_MODES:
+            raise ValueError(f"AvatarConfig.garment_layer must be one of {', '.join(GARMENT_LAYER_MODES)}, "
+                             f"found {self.garment_layer!r}")
+        if not 0 < self.garment_opacity_init < 1 or not self.garment_opacity_gain > 0:
+            raise ValueError(f"AvatarConfig: need 0 < garment_opacity_init < 1 and garment_opacity_gain > 0, found "
+                             f"{self.garment_opacity_init} and {self.garment_opacity_gain}")
         if self.pose_feature_channels != self.feature_channels:
             raise ValueError("AvatarConfig.pose_feature_channels must equal feature_channels: P replaces the second S")

@@ -1,4 +1,4 @@
-"""PROTOTYPE (not wired into AvatarModel): a garment layer of Gaussians for loose clothes.
+"""A garment layer of Gaussians for loose clothes (optional: ``AvatarConfig.garment_layer``).
 
 The avatar's Gaussians are one per body texel, each with its texel's skinning weights and a bounded
 offset: cloth that spans the gap between the legs or stands off the body has no Gaussians of its
@@ -20,10 +20,12 @@ This layer adds Gaussians where the silhouette says there is something:
   mask's width beyond the body's there is the flare (the top is the waist). Tight clothing gives
   no hint (None): no layer.
 
-``GarmentLayer.gaussians`` poses the layer into PosedGaussians (renderable with
-reconstruct.train.render.render_avatar) with given colours / opacities; in a trained avatar those
-would come from a feature map over the layer's grid decoded like the body's (see
-docs/loose_clothing.md for the wiring this needs).
+``AvatarModel(..., layer=...)`` appends the layer's Gaussians after the body's (its own feature map
+over the grid, the shared decoder, a learned opacity); ``garment_layer_for`` builds the layer a
+training run asks for (``off`` / ``auto`` / ``on``); ``GarmentLayer.to_state`` / ``from_state``
+carry its geometry through checkpoints as plain tensors and numbers. ``GarmentLayer.gaussians``
+poses the bare layer (given colours, one opacity) for the measurements of
+``benchmarks/loose_clothing.py``. See docs/loose_clothing.md.
 """
 
 from __future__ import annotations
@@ -37,10 +39,17 @@ from scipy.spatial import cKDTree
 
 from ..body.base import BodyModel
 from ..body.lbs import Skinning
-from ..body.parts import PART_INDEX
+from ..body.parts import PART_INDEX, PART_NAMES
 from ..body.pose import BodyPose
+from .config import GARMENT_LAYER_MODES
 
 _COVERED = ("torso", "thigh.L", "thigh.R", "shin.L", "shin.R")
+
+# the layer's Gaussians are one more part after the body's (``AvatarModel.parts``)
+GARMENT_PART_NAME = "garment"
+GARMENT_PART = len(PART_NAMES)
+AVATAR_PART_NAMES: tuple[str, ...] = (*PART_NAMES, GARMENT_PART_NAME)
+_HINT_FIELDS = ("top_z", "hem_z", "standoff_top", "standoff_hem")
 
 
 @dataclass(frozen=True)
@@ -82,6 +91,87 @@ class GarmentLayer:
         down = np.stack([idx[:-1].ravel(), idx[1:].ravel()], 1)
         side = np.stack([idx.ravel(), np.roll(idx, -1, axis=1).ravel()], 1)
         return np.concatenate([down, side])
+
+    def grid_neighbours(self) -> np.ndarray:
+        """(N,4) each Gaussian's grid neighbours in the order of ``texel_neighbours`` (next column,
+        next row, previous column, previous row): columns wrap round, -1 past the top and the hem."""
+        R, C = self.grid_shape
+        idx = np.arange(R * C).reshape(R, C)
+        out = np.full((R, C, 4), -1, np.int64)
+        out[..., 0] = np.roll(idx, -1, axis=1)
+        out[:-1, :, 1] = idx[1:]
+        out[..., 2] = np.roll(idx, 1, axis=1)
+        out[1:, :, 3] = idx[:-1]
+        return out.reshape(R * C, 4)
+
+    def steps(self) -> torch.Tensor:
+        """(N,2) float32 metres: the 3D length of one grid step round the ring (the tangent's
+        direction) and one down the column (central differences; one-sided at the top and hem):
+        a disc's in-plane scale, like ``texel_frames``' steps of the body's texels."""
+        R, C = self.grid_shape
+        P = self.positions.double().reshape(R, C, 3)
+        side = (P.roll(-1, dims=1) - P.roll(1, dims=1)).norm(dim=-1) / 2
+        down = torch.as_tensor(np.gradient(P.numpy(), axis=0)).norm(dim=-1)
+        return torch.stack([side, down], -1).reshape(R * C, 2).float()
+
+    def same_as(self, other: "GarmentLayer | None") -> bool:
+        """The same geometry (grid, positions, weights, normals, tangents, spacing)."""
+        if other is None or tuple(other.grid_shape) != tuple(self.grid_shape):
+            return False
+        return all(torch.equal(getattr(self, k), getattr(other, k))
+                   for k in ("positions", "normals", "tangents", "weights", "spacing"))
+
+    def to_state(self) -> dict:
+        """Plain tensors and numbers (what a checkpoint holds; ``from_state`` rebuilds the layer)."""
+        return {"positions": self.positions.detach().cpu().clone(), "normals": self.normals.detach().cpu().clone(),
+                "tangents": self.tangents.detach().cpu().clone(), "weights": self.weights.detach().cpu().clone(),
+                "spacing": self.spacing.detach().cpu().clone(),
+                "grid_shape": [int(self.grid_shape[0]), int(self.grid_shape[1])],
+                "hint": {k: float(getattr(self.hint, k)) for k in _HINT_FIELDS}}
+
+    @staticmethod
+    def from_state(d, source: str = "checkpoint", num_joints: int | None = None) -> "GarmentLayer":
+        """The layer of ``to_state``'s dict; ValueError naming ``source`` and what was expected."""
+        what = f"{source}: garment layer"
+        if not isinstance(d, dict):
+            raise ValueError(f"{what}: expected a dict of tensors and numbers, found {type(d).__name__}")
+        missing = sorted({"positions", "normals", "tangents", "weights", "spacing", "grid_shape", "hint"} - set(d))
+        if missing:
+            raise ValueError(f"{what}: missing entries {missing}")
+        shape = d["grid_shape"]
+        if (not isinstance(shape, (list, tuple)) or len(shape) != 2
+                or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in shape)):
+            raise ValueError(f"{what}: grid_shape must be two positive integers, found {shape!r}")
+        n = int(shape[0]) * int(shape[1])
+        want = {"positions": (n, 3), "normals": (n, 3), "tangents": (n, 3), "spacing": (n,)}
+        out = {}
+        for k, sh in want.items():
+            t = d[k]
+            if not isinstance(t, torch.Tensor) or tuple(t.shape) != sh or not torch.is_floating_point(t):
+                found = tuple(t.shape) if isinstance(t, torch.Tensor) else type(t).__name__
+                raise ValueError(f"{what}: {k} must be a float tensor of shape {sh}, found {found}")
+            out[k] = t.float()
+        w = d["weights"]
+        if (not isinstance(w, torch.Tensor) or w.dim() != 2 or w.shape[0] != n or not torch.is_floating_point(w)
+                or (num_joints is not None and w.shape[1] != num_joints)):
+            found = tuple(w.shape) if isinstance(w, torch.Tensor) else type(w).__name__
+            raise ValueError(f"{what}: weights must be a float tensor of shape ({n}, "
+                             f"{num_joints if num_joints is not None else 'joints'}), found {found}")
+        hint = d["hint"]
+        if not isinstance(hint, dict) or not all(isinstance(hint.get(k), (int, float)) for k in _HINT_FIELDS):
+            raise ValueError(f"{what}: hint must hold the numbers {', '.join(_HINT_FIELDS)}, found {hint!r}")
+        try:
+            volume = VolumeHint(**{k: float(hint[k]) for k in _HINT_FIELDS})
+        except ValueError as exc:
+            raise ValueError(f"{what}: {exc}") from None
+        return GarmentLayer(out["positions"], out["normals"], out["tangents"], w.float(), out["spacing"],
+                            (int(shape[0]), int(shape[1])), volume)
+
+    def describe(self) -> str:
+        R, C = self.grid_shape
+        h = self.hint
+        return (f"garment layer: {self.num_gaussians:,} Gaussians ({R} rows x {C} columns), top {h.top_z:.3f} m, "
+                f"hem {h.hem_z:.3f} m, flare {100 * h.standoff_hem:.1f} cm")
 
     def skinning(self, body: BodyModel) -> Skinning:
         return body.skinning(self.weights.to(torch.float64))
@@ -267,3 +357,32 @@ def volume_hint_from_masks(body: BodyModel, frames, *, max_frames: int = 8, min_
     hem = float(np.median(hems))
     flare = float(np.clip(np.median(flares) if flares else 0.05, 0.02, 0.15))
     return VolumeHint(top_z=marks["waist"], hem_z=min(hem, marks["hips"] - 0.1), standoff_hem=flare)
+
+
+def neighbour_strain(means: torch.Tensor, edges: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
+    """The layer's sheet regulariser: mean over grid edges ``(E,2)`` (rows of ``means``) of
+    ``(|x_i - x_j| / rest - 1)^2``, the squared relative change of each neighbour distance from its
+    canonical ``rest`` length (E,). Zero at rest; stretching and squeezing both cost."""
+    if len(edges) == 0:
+        return means.sum() * 0.0
+    d = (means[edges[:, 0]] - means[edges[:, 1]]).norm(dim=1)
+    return ((d / rest - 1.0) ** 2).mean()
+
+
+def garment_layer_for(body: BodyModel, frames, mode: str, what: str = "scene") -> GarmentLayer | None:
+    """The layer a run asks for (``AvatarConfig.garment_layer``): ``off`` none; ``auto`` the layer of
+    the masks' volume hint (``volume_hint_from_masks`` over ``frames``), none for tight clothing;
+    ``on`` the same, an error when the masks show no loose clothing."""
+    if mode not in GARMENT_LAYER_MODES:
+        raise ValueError(f"avatar.garment_layer must be one of {', '.join(GARMENT_LAYER_MODES)}, found {mode!r}")
+    if mode == "off":
+        return None
+    hint = volume_hint_from_masks(body, frames)
+    if hint is None:
+        if mode == "on":
+            raise ValueError(f"avatar.garment_layer=on: {what}: the masks of its {len(frames)} training frames show "
+                             f"no loose clothing (no frame where the mask covers the gap the body leaves between the "
+                             f"legs), so there is nowhere to put a garment layer; use avatar.garment_layer=auto to "
+                             f"train without one in that case")
+        return None
+    return build_garment_layer(body, hint)

@@ -22,6 +22,20 @@ floor neighbours always overlap. Posed, the frame follows the LBS matrix: the no
 cofactor, the u axis by the matrix itself, re-orthogonalised. Scales are relative to each
 Gaussian's own texel step, which varies by a factor of three over the body (the atlas gives the
 head more texels per area than the shins).
+
+Garment layer (optional, ``layer``: a ``garment_layer.GarmentLayer``; docs/loose_clothing.md). Its
+M Gaussians come AFTER the N body Gaussians, so body indices are unchanged: every per-Gaussian
+buffer (positions, normals, skinning weights, canonical inverses, spacing, tangents, steps) and the
+colour residual have N + M rows, and ``canonical(index=...)``, ``facing``, ``lbs_matrices``,
+``pose_with`` and ``splats`` take indices into N + M. The layer has its own feature map
+``layer_features`` (1, C, rows, cols) over its grid (columns wrap round), decoded by the same
+decoder with the same input width: [L, L, uv] where the layer's "uv" lies on an annulus of radius
+1.5-2.5 round the origin (angle = the column's angle round the tube, radius = the row), outside the
+body's [-1, 1] square and continuous across the seam -- so the decoder can tell layer from body and
+the body's inputs are exactly today's. Stage II's pose features are the body's (a map over its UV
+atlas): the layer decodes [L, L, uv] in both stages. Layer Gaussians have a learned opacity
+(``sigmoid(garment_opacity_gain * layer_opacity)``); body Gaussians stay opaque. Without a layer
+nothing of this exists and the model is the one before the layer (same parameters, same outputs).
 """
 
 from __future__ import annotations
@@ -36,9 +50,10 @@ from torch import nn
 
 from ..body.base import BodyModel
 from ..body.lbs import apply_normals, apply_points, blend, safe_normalize
-from ..body.uv_map import UVMap, build_uv_map, texel_frames, texel_spacing
+from ..body.uv_map import UVMap, build_uv_map, texel_frames, texel_neighbours, texel_spacing
 from .config import AvatarConfig
 from .decoder import GaussianDecoder
+from .garment_layer import GARMENT_PART, GarmentLayer
 from .pose_encoder import PoseEncoder
 
 
@@ -52,6 +67,7 @@ class CanonicalGaussians:
     features: torch.Tensor  # the feature map S that produced them (for its regulariser)
     tangents: torch.Tensor | None = None  # (N,3) unit first axis of a disc (None: sphere, identity rotation)
     index: torch.Tensor | None = None  # which of the model's Gaussians these are (None: all, in order)
+    opacities: torch.Tensor | None = None  # (N,) in (0,1]; None: all opaque (a model without a garment layer)
 
 
 @dataclass
@@ -109,8 +125,30 @@ def _bilinear_nodes(texel_rc: np.ndarray, fine: int, coarse: int) -> tuple[np.nd
     return np.stack([ids // coarse, ids % coarse], 1), inverse.reshape(flat.shape), np.stack(ws, 1)
 
 
+def _layer_uv(rows: int, cols: int) -> torch.Tensor:
+    """(rows*cols, 2) the layer's positional decoder input: column angle round an annulus whose radius
+    goes from 1.5 (top row) to 2.5 (hem), outside the body's [-1, 1]^2 (max(|x|, |y|) >= 1.5 / sqrt 2)."""
+    r = torch.arange(rows, dtype=torch.float64)[:, None].expand(rows, cols)
+    theta = (torch.arange(cols, dtype=torch.float64) * (2 * math.pi / cols))[None].expand(rows, cols)
+    radius = 1.5 + r / max(rows - 1, 1)
+    return torch.stack([radius * torch.cos(theta), radius * torch.sin(theta)], -1).reshape(-1, 2).float()
+
+
+def sample_wrapped(feature_map: torch.Tensor, rc: torch.Tensor) -> torch.Tensor:
+    """(1,C,R,W) map sampled bilinearly at (row, column) grid coordinates ``rc`` (M,2) (integers:
+    the grid points themselves), columns wrapping round, rows clamped -> (M,C)."""
+    _, _, R, W = feature_map.shape
+    padded = torch.cat([feature_map[..., -1:], feature_map, feature_map[..., :1]], dim=-1)
+    x = (rc[:, 1] + 1) / (W + 1) * 2 - 1  # column c sits at padded column c + 1 (align_corners)
+    y = rc[:, 0] / max(R - 1, 1) * 2 - 1
+    grid = torch.stack([x, y], 1).to(feature_map.dtype)
+    out = F.grid_sample(padded, grid[None, None], mode="bilinear", padding_mode="border", align_corners=True)
+    return out[0, :, 0].T
+
+
 class AvatarModel(nn.Module):
-    def __init__(self, body: BodyModel, config: AvatarConfig | None = None, uv_map: UVMap | None = None) -> None:
+    def __init__(self, body: BodyModel, config: AvatarConfig | None = None, uv_map: UVMap | None = None,
+                 layer: GarmentLayer | None = None) -> None:
         super().__init__()
         self.config = config = config or AvatarConfig()
         uv = uv_map or build_uv_map(body, config.gaussian_resolution)
@@ -131,15 +169,30 @@ class AvatarModel(nn.Module):
             self.register_buffer("node_weights", torch.as_tensor(w, dtype=torch.float32), persistent=False)
         else:
             self.register_buffer("node_grid", self.uv_grid.clone(), persistent=False)
-        self.register_buffer("base_positions", uv.positions.float())
-        self.register_buffer("base_normals", uv.normals.float())
-        self.register_buffer("skin_weights", uv.weights.float())
+        # the garment layer's rows follow the body's in every per-Gaussian buffer
+        self.layer = layer
+        self.num_body = len(uv)
+        if layer is not None and layer.weights.shape[1] != uv.weights.shape[1]:
+            raise ValueError(f"garment layer: skinning weights over {layer.weights.shape[1]} bones, the body "
+                             f"{self.body_name!r} has {uv.weights.shape[1]}")
+
+        def with_layer(body_rows: torch.Tensor, layer_rows) -> torch.Tensor:
+            """The body's rows, then the layer's (``layer_rows()``) when there is a layer."""
+            return body_rows if layer is None else torch.cat([body_rows, layer_rows().to(body_rows.dtype)])
+
+        self.register_buffer("base_positions", with_layer(uv.positions.float(), lambda: layer.positions))
+        self.register_buffer("base_normals", with_layer(uv.normals.float(), lambda: layer.normals))
+        self.register_buffer("skin_weights", with_layer(uv.weights.float(), lambda: layer.weights))
         canonical_inverse = torch.linalg.inv(blend(uv.weights, body.canonical_transforms))
+        canonical_inverse = with_layer(canonical_inverse, lambda: torch.linalg.inv(
+            blend(layer.weights.to(uv.weights.dtype), body.canonical_transforms)))
         self.register_buffer("canonical_inverse", canonical_inverse.float())
         spacing = texel_spacing(uv).float()
-        self.register_buffer("texel_spacing", spacing)
+        self.register_buffer("texel_spacing", with_layer(spacing, lambda: layer.spacing))
         if config.splat == "disc":
             tangent, steps = texel_frames(uv)
+            tangent = with_layer(tangent.float(), lambda: layer.tangents)
+            steps = with_layer(steps.float(), layer.steps if layer is not None else None)
             self.register_buffer("base_tangents", tangent.float(), persistent=False)
             self.register_buffer("texel_steps", steps.float(), persistent=False)  # (N,2) 3D length of one texel step along u, v
         C, Rf = config.feature_channels, config.feature_resolution
@@ -152,15 +205,40 @@ class AvatarModel(nn.Module):
         with torch.no_grad():
             self.decoder.heads["scale"][-1].bias.fill_(math.log(init / (1 - init)))
         self.pose_encoder: nn.Module | None = None
+        if layer is not None:  # created after everything above: the body's initial values are the same
+            rows, cols = layer.grid_shape
+            self.layer_features = nn.Parameter(torch.randn(1, C, rows, cols) * config.feature_init_std)
+            logit = math.log(config.garment_opacity_init / (1 - config.garment_opacity_init))
+            self.layer_opacity = nn.Parameter(torch.full((layer.num_gaussians,), logit / config.garment_opacity_gain))
+            rc = torch.stack(torch.meshgrid(torch.arange(rows), torch.arange(cols), indexing="ij"), -1).reshape(-1, 2)
+            self.register_buffer("layer_rc", rc.float(), persistent=False)
+            self.register_buffer("layer_uv", _layer_uv(rows, cols), persistent=False)
+            edges = torch.as_tensor(layer.edges())
+            p = layer.positions.float()
+            self.register_buffer("layer_edges", edges + self.num_body, persistent=False)  # (E,2) Gaussian ids
+            self.register_buffer("layer_rest", (p[edges[:, 0]] - p[edges[:, 1]]).norm(dim=1), persistent=False)
 
     @property
     def num_gaussians(self) -> int:
         return int(self.base_positions.shape[0])
 
     @property
+    def num_layer(self) -> int:
+        """How many garment-layer Gaussians follow the body's (0 without a layer)."""
+        return 0 if self.layer is None else self.layer.num_gaussians
+
+    @property
     def num_nodes(self) -> int:
         """How many decoder evaluations decode every Gaussian."""
-        return int(self.node_grid.shape[0])
+        return int(self.node_grid.shape[0]) + self.num_layer
+
+    def layer_param_groups(self, lr_features: float, lr_opacity: float) -> list[dict]:
+        """Adam parameter groups of the garment layer (its feature map, at the body feature map's rate;
+        its opacity parameters) for a stage plan; [] without a layer."""
+        if self.layer is None:
+            return []
+        return [{"params": [self.layer_features], "lr": lr_features, "name": "layer_features"},
+                {"params": [self.layer_opacity], "lr": lr_opacity, "name": "layer_opacity"}]
 
     def sample(self, feature_map: torch.Tensor, grid: torch.Tensor | None = None) -> torch.Tensor:
         """(1,C,H,W) map sampled bilinearly at every Gaussian's texel (or at ``grid``) -> (N,C)."""
@@ -187,8 +265,9 @@ class AvatarModel(nn.Module):
         """(3,R,R) posed positional map (Eq. 13's P_uv) for bone transforms ``articulation`` of a pose
         without its global rotation and translation: the displacement of each texel's surface point
         from its canonical position (zero in the canonical pose)."""
-        M = self.lbs_matrices(articulation)
-        return self.uv_map.scatter(apply_points(M, self.base_positions) - self.base_positions)
+        body = slice(0, self.num_body)  # a map over the body's UV atlas: the garment layer is not in it
+        M = self.lbs_matrices(articulation)[body]
+        return self.uv_map.scatter(apply_points(M, self.base_positions[body]) - self.base_positions[body])
 
     def pose_features(self, articulation: torch.Tensor) -> torch.Tensor | None:
         """E(P_uv), the pose-dependent part of P, or None without pose injection."""
@@ -197,13 +276,20 @@ class AvatarModel(nn.Module):
         return self.pose_encoder(self.pose_map(articulation)[None])
 
     # ----- decoding -------------------------------------------------------------------------
-    def decode_raw(self, pose_features: torch.Tensor | None = None,
-                   index: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """The decoder's raw outputs per Gaussian (all, or those of ``index``): evaluated at the
-        decode nodes those Gaussians need, interpolated to them when the nodes are coarser."""
+    def layer_decoder_input(self, index: torch.Tensor | None = None) -> torch.Tensor:
+        """[L, L, uv] of the garment layer's Gaussians (all, or those of ``index``, 0..M-1): its own
+        feature map at their grid points and their annulus coordinates (``_layer_uv``)."""
+        rc = self.layer_rc if index is None else self.layer_rc[index]
+        uv = self.layer_uv if index is None else self.layer_uv[index]
+        s = sample_wrapped(self.layer_features, rc)
+        return torch.cat([s, s, uv], dim=1)
+
+    def _body_nodes(self, pose_features: torch.Tensor | None, index: torch.Tensor | None):
+        """(decoder input at the decode nodes the body Gaussians ``index`` need, the function from the
+        decoder's outputs there to those Gaussians' raw outputs)."""
         if not self.interpolated:
             grid = None if index is None else self.node_grid[index]
-            return self.decoder(self.decoder_input(pose_features, grid))
+            return self.decoder_input(pose_features, grid), (lambda out: out)
         node_index = self.node_index if index is None else self.node_index[index]
         weights = self.node_weights if index is None else self.node_weights[index]
         if index is None:
@@ -211,8 +297,52 @@ class AvatarModel(nn.Module):
         else:
             needed, node_index = torch.unique(node_index, return_inverse=True)
             grid = self.node_grid[needed]
-        out = self.decoder(self.decoder_input(pose_features, grid))
-        return {k: (v[node_index] * weights[..., None]).sum(1) for k, v in out.items()}
+        return (self.decoder_input(pose_features, grid),
+                lambda out: {k: (v[node_index] * weights[..., None]).sum(1) for k, v in out.items()})
+
+    def decode_raw(self, pose_features: torch.Tensor | None = None,
+                   index: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The decoder's raw outputs per Gaussian (all, or those of ``index``): evaluated at the
+        decode nodes those Gaussians need, interpolated to them when the nodes are coarser. With a
+        garment layer its Gaussians' inputs join the body nodes' in one decoder call."""
+        if self.layer is None:
+            x, finish = self._body_nodes(pose_features, index)
+            return finish(self.decoder(x))
+        N = self.num_body
+        if index is None:
+            body_index, layer_index, is_layer = None, None, None
+        else:
+            is_layer = index >= N
+            body_index, layer_index = index[~is_layer], index[is_layer] - N
+        parts, finish, n_body = [], None, 0
+        if body_index is None or len(body_index):
+            x, finish = self._body_nodes(pose_features, body_index)
+            parts.append(x)
+            n_body = len(x)
+        if layer_index is None or len(layer_index):
+            parts.append(self.layer_decoder_input(layer_index))
+        out = self.decoder(torch.cat(parts))
+        body_out = finish({k: v[:n_body] for k, v in out.items()}) if finish is not None else None
+        layer_out = {k: v[n_body:] for k, v in out.items()}
+        if body_out is None:
+            return layer_out
+        merged = {k: torch.cat([body_out[k], layer_out[k]]) for k in out}
+        if index is None:
+            return merged
+        # back to the order of ``index``: the body's rows came first, then the layer's
+        order = torch.cat([torch.nonzero(~is_layer)[:, 0], torch.nonzero(is_layer)[:, 0]])
+        inverse = torch.empty_like(order)
+        inverse[order] = torch.arange(len(order), device=order.device)
+        return {k: v[inverse] for k, v in merged.items()}
+
+    def opacities(self, index: torch.Tensor | None = None) -> torch.Tensor | None:
+        """(N+M,) opacities (of ``index``): 1 for the body, the learned ones for the garment layer;
+        None without a layer (every Gaussian opaque)."""
+        if self.layer is None:
+            return None
+        layer = torch.sigmoid(self.config.garment_opacity_gain * self.layer_opacity)
+        full = torch.cat([torch.ones(self.num_body, dtype=layer.dtype, device=layer.device), layer])
+        return full if index is None else full[index]
 
     def canonical(self, pose_features: torch.Tensor | None = None,
                   index: torch.Tensor | None = None) -> CanonicalGaussians:
@@ -236,7 +366,8 @@ class AvatarModel(nn.Module):
             steps = pick(self.texel_steps)
             scales = m * torch.cat([steps, cfg.disc_thickness * steps.min(1, keepdim=True).values], 1)
             tangents = pick(self.base_tangents)
-        return CanonicalGaussians(means, normals, colors, scales, out["offset"], self.features, tangents, index)
+        return CanonicalGaussians(means, normals, colors, scales, out["offset"], self.features, tangents, index,
+                                  self.opacities(index))
 
     # ----- posing ---------------------------------------------------------------------------
     def lbs_matrices(self, pose_transforms: torch.Tensor, index: torch.Tensor | None = None) -> torch.Tensor:
@@ -258,6 +389,9 @@ class AvatarModel(nn.Module):
             c = torch.as_tensor(np.asarray(camera_center), dtype=x.dtype, device=x.device)
             view = safe_normalize(x - c)
             keep = (view * n).sum(1) < cos_margin
+            # the garment layer is an open, see-through sheet, not the far side of a closed body:
+            # its back shows through wherever its front fades, so every view keeps all of it
+            keep[self.num_body:] = True
             return torch.nonzero(keep)[:, 0]
 
     def pose(self, canon: CanonicalGaussians, pose_transforms: torch.Tensor) -> PosedGaussians:
@@ -273,8 +407,8 @@ class AvatarModel(nn.Module):
     def splats(canon: CanonicalGaussians, means: torch.Tensor | None = None, normals: torch.Tensor | None = None,
                tangents: torch.Tensor | None = None) -> PosedGaussians:
         """Renderable Gaussians at ``means``/``normals``/``tangents`` (default: the canonical ones,
-        i.e. canonical space), opacity 1; spheres with the identity rotation (paper A.1), discs
-        rotated into their tangent frame."""
+        i.e. canonical space), opacity 1 (a garment layer's: its learned ones); spheres with the
+        identity rotation (paper A.1), discs rotated into their tangent frame."""
         means = canon.means if means is None else means
         normals = canon.normals if normals is None else normals
         n = means.shape[0]
@@ -283,8 +417,38 @@ class AvatarModel(nn.Module):
             quats[:, 0] = 1.0
         else:
             quats = frame_quaternions(canon.tangents if tangents is None else tangents, normals)
-        return PosedGaussians(means, normals, canon.colors, canon.scales, quats,
-                              torch.ones(n, dtype=means.dtype, device=means.device))
+        opacities = (torch.ones(n, dtype=means.dtype, device=means.device) if canon.opacities is None
+                     else canon.opacities)
+        return PosedGaussians(means, normals, canon.colors, canon.scales, quats, opacities)
 
     def parts(self) -> np.ndarray:
-        return self.uv_map.parts
+        """(N+M,) part index per Gaussian: the body texels' parts, then ``GARMENT_PART`` for the
+        garment layer's (``garment_layer.AVATAR_PART_NAMES`` names them)."""
+        if self.layer is None:
+            return self.uv_map.parts
+        return np.concatenate([self.uv_map.parts, np.full(self.num_layer, GARMENT_PART, self.uv_map.parts.dtype)])
+
+    def neighbours(self) -> np.ndarray:
+        """(N+M,4) each Gaussian's grid neighbours (``texel_neighbours`` order, -1 where none): the
+        body texels' in the UV atlas, the garment layer's on its own grid (columns wrapping round);
+        body and layer are not neighbours of each other. What erosion, grow / shrink and the
+        appearance fills' smoothing walk over."""
+        nb = texel_neighbours(self.uv_map.texel_rc, self.uv_map.resolution)
+        if self.layer is None:
+            return nb
+        lay = self.layer.grid_neighbours()
+        return np.concatenate([nb, np.where(lay >= 0, lay + self.num_body, -1)])
+
+    def layer_edge_rows(self, index: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The garment layer's grid edges as rows of decoded Gaussians (all, or those of ``index``:
+        edges with both ends decoded) and their canonical rest lengths: ((E,2), (E,))."""
+        if self.layer is None:
+            empty = torch.zeros(0, 2, dtype=torch.long, device=self.base_positions.device)
+            return empty, self.base_positions.new_zeros(0)
+        if index is None:
+            return self.layer_edges, self.layer_rest
+        row = torch.full((self.num_gaussians,), -1, dtype=torch.long, device=index.device)
+        row[index] = torch.arange(len(index), device=index.device)
+        e = row[self.layer_edges]
+        ok = (e >= 0).all(1)
+        return e[ok], self.layer_rest[ok]

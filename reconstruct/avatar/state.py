@@ -188,17 +188,39 @@ class AvatarState:
         return f
 
     def state_dict(self) -> dict:
-        return {"model": self.model.state_dict(), "pose_delta": self.pose_delta.detach().clone(),
-                "seen": self.seen.clone(),
-                "trusted_seen": None if self._trusted_seen is None else self._trusted_seen.clone()}
+        """Tensors and plain data: the model's, the pose corrections, the flags and -- with a garment
+        layer -- the layer's geometry (``GarmentLayer.to_state``; checkpoints rebuild the model
+        with it before loading, ``Trainer.load_state_dict``)."""
+        out = {"model": self.model.state_dict(), "pose_delta": self.pose_delta.detach().clone(),
+               "seen": self.seen.clone(),
+               "trusted_seen": None if self._trusted_seen is None else self._trusted_seen.clone()}
+        if self.model.layer is not None:
+            out["garment_layer"] = self.model.layer.to_state()
+        return out
 
     def load_state_dict(self, state: dict) -> None:
+        saved = state.get("garment_layer")
+        layer = self.model.layer
+        if (saved is None) != (layer is None) or (layer is not None and (
+                list(layer.grid_shape) != list(saved.get("grid_shape", [])))):
+            have = "no garment layer" if layer is None else f"a {layer.grid_shape[0]}x{layer.grid_shape[1]} garment layer"
+            found = "none" if saved is None else f"{saved.get('grid_shape')}"
+            raise ValueError(f"the avatar state holds a garment layer of grid {found}; this model has {have} "
+                             f"(build the model with the state's layer first)")
         self.model.load_state_dict(state["model"])
         with torch.no_grad():
             self.pose_delta.copy_(state["pose_delta"])
         self.seen = state["seen"].clone()
         ts = state.get("trusted_seen")
         self._trusted_seen = None if ts is None else ts.clone()
+
+    def replace_model(self, model: AvatarModel) -> None:
+        """Train ``model`` from now on (a model with a different garment layer, before a checkpoint
+        is loaded into it): the per-Gaussian flags and the edits start over at its size."""
+        self.model = model
+        self.seen = torch.zeros(model.num_gaussians, dtype=torch.bool)
+        self._trusted_seen = None
+        self.edits = EditList((), model.num_gaussians)
 
     @torch.no_grad()
     def mark_seen(self, first_hit: torch.Tensor, posed: PosedGaussians, camera) -> None:

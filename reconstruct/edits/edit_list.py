@@ -2,10 +2,11 @@
 
 Applied at one place, ``AvatarState`` (decode, posed, snapshot, the seen flags):
 
-1. **Locks** (raw attributes): a locked texel's means, normals, colours, scales and Δx come from the
-   model's parameters at lock time (a frozen copy decoding at the same frame or pose), replacing the
-   live decoder's output -- so the training loss has no gradient through those rows, and what the
-   shared decoder and feature map learn later does not reach them. A texel under several locks
+1. **Locks** (raw attributes): a locked texel's means, normals, colours, scales and Δx (and a garment
+   layer Gaussian's opacity) come from the model's parameters at lock time (a frozen copy decoding
+   at the same frame or pose), replacing the live decoder's output -- so the training loss has no
+   gradient through those rows, and what the shared decoder and feature map learn later does not
+   reach them. A texel under several locks
    keeps the first one's (it already rendered that way when the later lock was made).
 2. **Colour edits** in list order: recolour (HSV) and redo (a per-texel logit offset that made the
    colour equal the prior's pseudo-colour when it was made; training moves it on from there).
@@ -252,6 +253,9 @@ class EditList:
             for k in LOCKED_FIELDS:
                 v = rows(getattr(frozen, k))
                 out[k] = torch.where(m[:, None], v, out[k].expand_as(v))
+            if canon.opacities is not None and frozen.opacities is not None:  # a garment layer's opacities
+                v = rows(frozen.opacities)
+                out["opacities"] = torch.where(m, v, out.get("opacities", canon.opacities))
             claimed = m if claimed is None else claimed | m
         colors = out["colors"]
         for e in self.entries:

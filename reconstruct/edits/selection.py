@@ -1,13 +1,15 @@
 """Selections: (N,) bool texel masks, one entry per Gaussian (Gaussians are the UV map's valid
-texels, ``model.uv_map.texel_rc``).
+texels, ``model.uv_map.texel_rc``, then -- with a garment layer -- the layer's grid points).
 
-- ``part_mask``: by body part (``reconstruct/body/parts.py`` names; shell patterns like ``*.L``,
-  ``upperarm.*``, and ``arms`` / ``legs`` / ``hands`` / ``feet``).
+- ``part_mask``: by body part (``reconstruct/body/parts.py`` names, and ``garment`` for a garment
+  layer's Gaussians; shell patterns like ``*.L``, ``upperarm.*``, and ``arms`` / ``legs`` /
+  ``hands`` / ``feet``).
 - ``screen_mask``: the Gaussians inside a screen region (rectangle, brush, lasso polygon) seen by a
   camera, from a ``Snapshot`` (what the studio shows: any pose, observation or canonical space):
   the visible surface only (the rasterizer's first-hit ids) or through the body (every Gaussian
   whose centre projects inside).
-- ``grow`` / ``shrink``: by texels over the UV grid's 4-neighbourhood (``texel_neighbours``).
+- ``grow`` / ``shrink``: by texels over the UV grid's 4-neighbourhood (``AvatarModel.neighbours``: the
+  body's ``texel_neighbours``, a garment layer's own grid).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import fnmatch
 import numpy as np
 import torch
 
-from ..body.parts import PART_NAMES
+from ..avatar.garment_layer import AVATAR_PART_NAMES
 
 GROUPS = {"arms": ("upperarm.*", "lowerarm.*", "hand.*"), "legs": ("thigh.*", "shin.*", "foot.*"),
           "hands": ("hand.*",), "feet": ("foot.*",), "body": ("*",)}
@@ -31,9 +33,9 @@ def part_mask(parts: np.ndarray, names: str | list[str]) -> np.ndarray:
     wanted: set[int] = set()
     for n in names:
         pats = GROUPS.get(n, (n,))
-        hits = {i for i, p in enumerate(PART_NAMES) for pat in pats if fnmatch.fnmatchcase(p, pat)}
+        hits = {i for i, p in enumerate(AVATAR_PART_NAMES) for pat in pats if fnmatch.fnmatchcase(p, pat)}
         if not hits:
-            raise ValueError(f"part {n!r}: no body part matches (parts: {', '.join(PART_NAMES)}; "
+            raise ValueError(f"part {n!r}: no body part matches (parts: {', '.join(AVATAR_PART_NAMES)}; "
                              f"groups: {', '.join(GROUPS)})")
         wanted |= hits
     return np.isin(np.asarray(parts), sorted(wanted))

@@ -23,7 +23,6 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 import torch
 
-from ..body.uv_map import texel_neighbours
 from . import selection as S
 from .edit_list import EditEntry, EditList, model_parameters
 from .ops import Lock, Op, PaintSeen, PaintUnseen, Redo
@@ -70,9 +69,8 @@ class EditSession:
 
     @property
     def neighbours(self) -> np.ndarray:
-        if self._neighbours is None:
-            uv = self.state.model.uv_map
-            self._neighbours = texel_neighbours(uv.texel_rc, uv.resolution)
+        if self._neighbours is None or len(self._neighbours) != self.num_gaussians:
+            self._neighbours = self.state.model.neighbours()  # a garment layer's Gaussians over its own grid
         return self._neighbours
 
     def select(self, mask: np.ndarray, mode: str = "replace", label: str = "") -> np.ndarray:

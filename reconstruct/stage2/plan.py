@@ -6,6 +6,12 @@ space. Unseen views come from view selection (Eq. 8-10), run once when the plan 
 trusted (eroded) seen flags, in canonical space and at each reference frame; the references and
 the propagated appearance (the built-in prior's pseudo-target colours) are fixed then too.
 
+A garment layer (``AvatarConfig.garment_layer``) takes part in all of it: its Gaussians are in the
+visibility maps (with their opacities), their seen flags are eroded over the layer's own grid
+(``AvatarModel.neighbours``) and the propagated appearance fills them as one more part
+("garment": the band of seen layer Gaussians round the tube at the same height, the mirrored
+colour through the part's coronal plane -- the same row at theta -> pi - theta).
+
 ``start_stage2`` switches a trainer that finished Stage I to this plan; ``restore_stage2`` builds
 the plan a Stage II checkpoint is loaded into.
 """
@@ -20,7 +26,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from ..body.uv_map import texel_neighbours
 from ..camera import Camera
 from ..appearance.propagation import erode, propagate_colors
 from ..appearance.wrap_fill import wrap_fill_colors
@@ -83,7 +88,8 @@ class Stage2Plan(StagePlan):
     def param_groups(self, state: AvatarState) -> list[dict]:
         s2, model = self.settings, state.model
         groups = [{"params": model.decoder.parameters(), "lr": s2.lr_decoder, "name": "decoder"},
-                  {"params": [model.features], "lr": s2.lr_features, "name": "features"}]
+                  {"params": [model.features], "lr": s2.lr_features, "name": "features"},
+                  *model.layer_param_groups(s2.lr_features, s2.lr_decoder)]  # [] without a garment layer
         if model.pose_encoder is not None:
             groups.append({"params": model.pose_encoder.parameters(), "lr": s2.lr_pose_encoder, "name": "pose_encoder"})
         return groups
@@ -167,7 +173,7 @@ class Stage2Plan(StagePlan):
         """Everything Stage II fixes at its start: the trusted seen flags, view selection, the
         canonical reference render, the propagated appearance."""
         model = state.model
-        nb = texel_neighbours(model.uv_map.texel_rc, model.uv_map.resolution)
+        nb = model.neighbours()  # body texels on the UV atlas, a garment layer on its own grid
         state.trusted_seen = torch.as_tensor(erode(state.seen.numpy(), nb, self.settings.seen_erosion))
         self.reselect_views(state)
         canon = state.canonical(None)
@@ -188,7 +194,7 @@ class Stage2Plan(StagePlan):
         the propagated appearance redone on the painted flags (``state.trusted_seen``)."""
         model = state.model
         self.reselect_views(state)
-        nb = texel_neighbours(model.uv_map.texel_rc, model.uv_map.resolution)
+        nb = model.neighbours()  # body texels on the UV atlas, a garment layer on its own grid
         self.pseudo_colors = self.propagated_colors(model, state.trusted_seen, state.canonical(None).colors,
                                                     nb, no_mirror=state.edits.redone).to(state.device)
         self.visibility_key = state.edits.visibility_key()

@@ -10,6 +10,12 @@ renamed over the old one, so a crash at any moment leaves either the previous or
 checkpoint, never a torn one. A write that fails (disk full, read-only folder, file size limit)
 raises ``CheckpointWriteError`` naming the file and the cause, and leaves the previous one as it was.
 
+An avatar with a garment layer (``AvatarConfig.garment_layer``) keeps the layer's geometry under
+``avatar.garment_layer`` as plain tensors and numbers (``GarmentLayer.to_state``: positions,
+normals, tangents, skinning weights, spacing, grid shape, the volume hint's numbers); the trainer
+rebuilds the model with it before loading the rest (``garment_layer_of``). Checkpoints without it
+(every one written before the layer existed) load as avatars without a layer.
+
 Version 1 checkpoints (written before this format) were read with full unpickling. They are
 refused with a message saying how to convert them once (``migrate_checkpoint``, the ``migrate``
 command): one that reads as data as it is, one holding other Python objects only with ``--trust``.
@@ -26,6 +32,7 @@ from pathlib import Path
 import torch
 
 from ..atomic import atomic_output
+from ..avatar.garment_layer import GarmentLayer
 
 FORMAT = "wonderhuman-checkpoint"
 VERSION = 2
@@ -130,6 +137,19 @@ def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
     if state.get("version") != VERSION:
         raise CheckpointError(f"{path}: checkpoint version {state.get('version')} is not supported (expected {VERSION})")
     return state
+
+
+def garment_layer_of(state: dict, source: str = "checkpoint", num_joints: int | None = None) -> GarmentLayer | None:
+    """The garment layer a checkpoint's avatar was trained with (None: none, as in every checkpoint
+    written before the layer existed); CheckpointError naming ``source`` when it is malformed."""
+    avatar = state.get("avatar")
+    saved = avatar.get("garment_layer") if isinstance(avatar, dict) else None
+    if saved is None:
+        return None
+    try:
+        return GarmentLayer.from_state(saved, source, num_joints)
+    except ValueError as exc:
+        raise CheckpointError(str(exc)) from exc
 
 
 def migrate_checkpoint(path: str | os.PathLike, *, trust: bool = False) -> bool:

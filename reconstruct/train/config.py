@@ -59,6 +59,12 @@ class Stage1Config(StageSettings):
     lambda_offset: float = 0.85
     lambda_scale: float = 0.03
     lambda_features: float = 1.0
+    # only with a garment layer (avatar.garment_layer; tight runs are unchanged): rendered alpha
+    # against the frame's mask (mean square over the crop), so the layer's opacity fades where the
+    # silhouette shows nothing; and the layer's sheet regulariser (mean squared relative change of
+    # its grid neighbours' canonical distances, garment_layer.neighbour_strain)
+    lambda_alpha: float = 1.0
+    lambda_layer_spacing: float = 1.0
     # learning-rate decay over the budget (steps or minutes, whichever ends first): constant until
     # lr_decay_start of the stage, then geometric down to lr_final x at its end. GaussianAvatar's
     # x lr_gamma drops at 1/3 and 2/3 (``lr_milestones``; used instead when set, as in ``paper()``)
@@ -143,6 +149,8 @@ class Stage1Config(StageSettings):
         d.setdefault("random_background", False)  # recorded before training on random backgrounds
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed
+        if isinstance(d.get("avatar"), dict) and "garment_layer" not in d["avatar"]:
+            d["avatar"] = {**d["avatar"], "garment_layer": "off"}  # recorded before the garment layer existed
         return super().from_dict(d)
 
 

@@ -64,7 +64,8 @@ class Stage1Plan(StagePlan):
     def param_groups(self, state: AvatarState) -> list[dict]:
         c = self.settings
         return [{"params": state.model.decoder.parameters(), "lr": c.lr_decoder, "name": "decoder"},
-                {"params": [state.model.features], "lr": c.lr_features, "name": "features"}]
+                {"params": [state.model.features], "lr": c.lr_features, "name": "features"},
+                *state.model.layer_param_groups(c.lr_features, c.lr_decoder)]  # [] without a garment layer
 
     def finish(self, state: AvatarState) -> str | None:
         """The never-seen Gaussians take the wrap-around fill's colours (``fill_unseen``)."""

@@ -7,7 +7,8 @@ schedule, the guards against non-finite numbers, the clocks and the logs. In the
 gsplat's ``Strategy``: policy in small objects, the loop outside.
 
 ``GivenViewStep`` is the Stage I loss on a video frame (paper Eq. 11); Stage II adds the guidance
-step (``reconstruct.stage2.guidance``).
+step (``reconstruct.stage2.guidance``). With a garment layer it adds an alpha-vs-mask term and the
+layer's sheet regulariser (docs/loose_clothing.md).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import TYPE_CHECKING, Callable, Protocol
 
 import torch
 
+from ..avatar.garment_layer import neighbour_strain
 from . import losses as L
 from .config import Stage1Config
 from .data import composite_on
@@ -64,7 +66,7 @@ class StepOutcome:
 def gaussians_finite(g) -> bool:
     """Whether posed Gaussians are all finite (a bad decoder output or pose must not reach the
     rasterizer, whose input check would stop the run)."""
-    return all(bool(torch.isfinite(t).all()) for t in (g.means, g.scales, g.colors, g.normals))
+    return all(bool(torch.isfinite(t).all()) for t in (g.means, g.scales, g.colors, g.normals, g.opacities))
 
 
 class _ScatteredPositions:
@@ -87,6 +89,9 @@ class TrainingStep(ABC):
 class GivenViewStep(TrainingStep):
     """Paper Eq. 11 on a video frame: RGB, SSIM, normals, LPIPS (with weights), the Frobenius
     regularisers of Δx, s and S, plus λ_p‖E(P_uv)‖ when the avatar has pose injection (Eq. 16).
+    With a garment layer also: rendered alpha against the mask (``lambda_alpha``: the layer's
+    opacities learn the silhouette) and the layer's neighbour-distance regulariser over the grid
+    edges among the decoded Gaussians (``lambda_layer_spacing``).
     ``marks_seen``: first-hit Gaussians that face the camera become seen (Eq. 7, Stage I)."""
 
     kind = "given"
@@ -114,7 +119,8 @@ class GivenViewStep(TrainingStep):
             return StepOutcome(i, skipped=True)
         background, image = data.background, tgt.image
         if getattr(cfg, "random_background", False):
-            background = torch.rand(3, dtype=image.dtype, device=image.device)
+            # from the loop's own generator (saved in checkpoints), not torch's global one
+            background = torch.as_tensor(trainer.rng.random(3), dtype=image.dtype, device=image.device)
             image = composite_on(tgt, background, data.background)
         r = render_avatar(posed, tgt.camera, background, normals=data.use_normals, first_hit=self.marks_seen,
                           hit_threshold=cfg.hit_threshold)
@@ -136,6 +142,12 @@ class GivenViewStep(TrainingStep):
         if pose_features is not None:
             terms["pose_features"] = L.mean_square(pose_features)
             weights["pose_features"] = self.lambda_pose_features
+        if model.num_layer:
+            terms["alpha"] = L.mse(r.alpha, tgt.mask)
+            weights["alpha"] = cfg.lambda_alpha
+            edges, rest = model.layer_edge_rows(index)
+            terms["layer_spacing"] = neighbour_strain(canon.means, edges, rest)
+            weights["layer_spacing"] = cfg.lambda_layer_spacing
         info = {"psnr_train": float(-10 * torch.log10(terms["rgb"].detach().clamp_min(1e-12)))}
         after = None
         if self.marks_seen:

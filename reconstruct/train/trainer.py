@@ -7,6 +7,10 @@ the metrics log, and the snapshots the renderer draws. What is trained lives in 
 how a stage trains it lives in its ``StagePlan`` (Stage I: ``Stage1Plan``; Stage II:
 ``reconstruct.stage2.plan.Stage2Plan``, switched to with ``begin``).
 
+Garment layer: with ``avatar.garment_layer`` "auto" or "on" the trainer builds the layer when it
+starts (``garment_layer_for`` on the training frames' masks); a checkpoint's layer (its geometry is
+saved with it) replaces the model's before the checkpoint is loaded.
+
 Files: the trainer writes ``checkpoint.pt`` and appends to ``metrics.jsonl`` in ``run_dir`` when it
 has one; the run folder itself (lock, run info, resume) is ``reconstruct.run_folder.RunFolder``.
 """
@@ -25,13 +29,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..avatar.garment_layer import GarmentLayer, garment_layer_for
 from ..avatar.model import AvatarModel
 from ..avatar.state import AvatarState
 from ..body.pose import BodyPose
 from ..data.scene import Scene
 from ..metrics import load_lpips_or_none
 from ..snapshot import Snapshot, SnapshotBox
-from .checkpoint import CHECKPOINT_NAME, CheckpointError, plain_scalars, save_checkpoint
+from .checkpoint import CHECKPOINT_NAME, CheckpointError, garment_layer_of, plain_scalars, save_checkpoint
 from .config import Stage1Config
 from .data import TrainingData
 from .evaluate import evaluate_views
@@ -40,6 +45,7 @@ from .plan import Stage1Plan, StagePlan
 from .validation import holdout_frames, resolve_holdout, validate_frames
 
 GOOD_STATE_EVERY = 100  # steps between in-memory copies of the last good state
+FROM_CONFIG = "config"  # Trainer(garment_layer=...): build the layer the config asks for
 
 
 @dataclass
@@ -72,19 +78,33 @@ class TrainedAvatar:
 class Trainer:
     def __init__(self, scene: Scene, config: Stage1Config | None = None, run_dir: str | Path | None = None, *,
                  scene_spec: str | None = None,
-                 plan: StagePlan | Callable[["Trainer"], StagePlan] | None = None) -> None:
+                 plan: StagePlan | Callable[["Trainer"], StagePlan] | None = None,
+                 garment_layer: GarmentLayer | None | str = FROM_CONFIG) -> None:
         """A new avatar on ``scene``, trained by ``plan`` (default: Stage I), or -- ``plan`` a
-        function of the trainer -- the plan a checkpoint is about to be loaded into."""
+        function of the trainer -- the plan a checkpoint is about to be loaded into.
+        ``garment_layer``: the layer the config asks for (``avatar.garment_layer``, from the
+        training frames' masks), or this one (None: none; a checkpoint's: ``garment_layer_of``)."""
         self.scene = scene
         self.config = config = config or Stage1Config()
         self.scene_spec = scene_spec or scene.name
         self.device = torch.device(config.device)
         if config.threads:
             torch.set_num_threads(config.threads)
+        self.holdout = resolve_holdout(scene, config.holdout)
+        self.val_frames = holdout_frames(len(scene.frames), self.holdout)
+        training_frames = [i for i in range(len(scene.frames)) if i not in set(self.val_frames)]
         torch.manual_seed(config.seed)
         self.rng = np.random.default_rng(config.seed)
         body = scene.body_model()
-        model = AvatarModel(body, config.avatar).to(self.device)
+        if isinstance(garment_layer, str):  # (no random numbers drawn: the model starts as without a layer)
+            if garment_layer != FROM_CONFIG:
+                raise ValueError(f"Trainer: garment_layer must be a GarmentLayer, None or {FROM_CONFIG!r}, "
+                                 f"found {garment_layer!r}")
+            garment_layer = garment_layer_for(body, [scene.frames[i] for i in training_frames],
+                                              config.avatar.garment_layer, f"scene {scene.name}")
+            if garment_layer is not None:
+                print(garment_layer.describe(), file=sys.stderr)
+        model = AvatarModel(body, config.avatar, layer=garment_layer).to(self.device)
         self.state = AvatarState(body, model, [f.pose for f in scene.frames], refine_poses=config.pose_refinement)
         self.background = torch.tensor(config.background, dtype=torch.float32, device=self.device)
         self.pose_optimizer = (torch.optim.Adam([self.state.pose_delta], lr=config.lr_pose)
@@ -100,10 +120,7 @@ class Trainer:
             self.lpips = self.lpips.to(self.device).eval()
             for p in self.lpips.parameters():
                 p.requires_grad_(False)
-        self.holdout = resolve_holdout(scene, config.holdout)
-        self.val_frames = holdout_frames(len(scene.frames), self.holdout)
-        self.data = TrainingData(scene, self.background, config.crop_margin,
-                                 [i for i in range(len(scene.frames)) if i not in set(self.val_frames)])
+        self.data = TrainingData(scene, self.background, config.crop_margin, training_frames)
         if not self.val_frames and not scene.eval_views:  # nothing held out (one frame): report the fit
             self.val_frames = [self.data.frames[int(k)] for k in np.linspace(0, len(self.data) - 1,
                                                                               min(4, len(self.data)))]
@@ -369,11 +386,24 @@ class Trainer:
             return self.save()
         return None
 
+    def _use_garment_layer(self, layer: GarmentLayer | None) -> None:
+        """Rebuild the avatar model with ``layer`` (a checkpoint's; None: without one) before the
+        checkpoint is loaded into it: same body, UV map and pose encoder; the optimiser is rebuilt
+        over the new parameters (its state comes from the checkpoint next)."""
+        old = self.model
+        model = AvatarModel(self.state.body, self.config.avatar, uv_map=old.uv_map, layer=layer).to(self.device)
+        model.pose_encoder = old.pose_encoder
+        self.state.replace_model(model)
+        self.begin(self.plan, fresh=False)
+
     def load_state_dict(self, state: dict, source: str = "checkpoint") -> None:
         if state.get("scene_name") != self.scene.name:
             raise CheckpointError(f"{source}: made for scene {state.get('scene_name')!r}, not {self.scene.name!r}")
         if int(state["stage"]) != self.stage:
             raise CheckpointError(f"{source}: a Stage {state['stage']} checkpoint, loaded into a Stage {self.stage} plan")
+        layer = garment_layer_of(state, source, self.state.body.num_joints)
+        if not (layer is None and self.model.layer is None) and not (layer is not None and layer.same_as(self.model.layer)):
+            self._use_garment_layer(layer)
         try:
             self.state.load_state_dict(state["avatar"])
             self.optimizer.load_state_dict(state["optimizer"])

@@ -16,6 +16,10 @@ changes (seen Gaussians, geometry, the decoder). The sources are the seen flags 
 silhouette at grazing incidence, darkened by its blend with the background. Painted visibility
 (edits) counts: a region painted seen is not filled, one painted unseen is.
 
+A garment layer's Gaussians are filled like the body's: they are one more part ("garment") whose
+seen ones colour the unseen ones round the tube at the same height (the fill's band), eroded and
+smoothed over the layer's own grid (``AvatarModel.neighbours``).
+
 Stage II starts from this avatar and recomputes its own pseudo-colours from the same trusted
 seen Gaussians, so the fill changes where Stage II starts, not where it is pulled to."""
 
@@ -27,7 +31,6 @@ import torch
 
 from ..appearance.propagation import erode
 from ..appearance.wrap_fill import wrap_fill_colors
-from ..body.uv_map import texel_neighbours
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
@@ -49,7 +52,7 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     unseen = ~seen
     if not bool(seen.any()) or not bool(unseen.any()):
         return 0
-    neighbours = texel_neighbours(model.uv_map.texel_rc, model.uv_map.resolution)
+    neighbours = model.neighbours()  # a garment layer's Gaussians over its own grid, one more part
     trusted = torch.as_tensor(erode(seen.numpy(), neighbours, erosion))
     if not bool(trusted.any()):
         trusted = seen

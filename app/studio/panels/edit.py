@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from reconstruct.body.parts import PART_NAMES
+from reconstruct.avatar.garment_layer import AVATAR_PART_NAMES
 from reconstruct.edits import Erase, Lock, PaintSeen, PaintUnseen, Recolour, Redo
 from reconstruct.edits.selection import GROUPS
 
@@ -16,7 +16,7 @@ from ..edit_tools import COMBINE_MODES, TOOL_LABELS, TOOLS
 from .common import error_text, wrapped_hint
 from .context import PanelContext
 
-PART_CHOICES = (*GROUPS, *PART_NAMES)
+PART_CHOICES = (*GROUPS, *AVATAR_PART_NAMES)  # the body's parts and "garment" (a garment layer)
 TITLE = "Edit"
 BUSY_RGBA = (1.0, 0.85, 0.35, 1.0)  # "applying..." (not red: red is for errors)
 

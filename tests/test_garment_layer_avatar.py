@@ -1,0 +1,443 @@
+"""The garment layer wired into the avatar (issue 20; docs/loose_clothing.md, "How it is wired"):
+the switch, N body + M layer Gaussians through decoding, posing, rendering, the layer's opacity and
+losses, checkpoints, exports, edits, the fills and Stage II. Tiny sizes: the layer is built from a
+hand-made VolumeHint (the synthetic loose scenes take minutes to build)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from reconstruct.avatar import AvatarConfig, AvatarModel
+from reconstruct.avatar.garment_layer import (GARMENT_PART, GarmentLayer, VolumeHint, build_garment_layer,
+                                              garment_layer_for, landmark_heights, neighbour_strain)
+from reconstruct.camera import Camera
+from reconstruct.train.render import render_avatar
+
+
+def _config(**kw) -> AvatarConfig:
+    return AvatarConfig(gaussian_resolution=48, feature_resolution=32, feature_channels=8, pose_feature_channels=8,
+                        hidden=32, **kw)
+
+
+def _layer(body) -> GarmentLayer:
+    """A skirt-like layer from the waist to above the knees: 16 columns, rows every 6 cm."""
+    m = landmark_heights(body)
+    hint = VolumeHint(top_z=m["waist"], hem_z=m["knee"] + 0.08, standoff_hem=0.05)
+    return build_garment_layer(body, hint, cols=16, row_step=0.06)
+
+
+@pytest.fixture(scope="module")
+def body(tiny_scene):
+    return tiny_scene.body_model()
+
+
+@pytest.fixture(scope="module")
+def layer(body):
+    return _layer(body)
+
+
+def _front_camera(points: torch.Tensor, size: int = 64) -> Camera:
+    target = points.detach().double().mean(0).numpy()
+    return Camera.orbit(0.0, 0.0, 3.0, target, width=size, height=size, fov_y_deg=40.0)
+
+
+def _trainer(scene, config, layer, run_dir=None):
+    from reconstruct.train.trainer import Trainer
+
+    return Trainer(scene, config, run_dir, garment_layer=layer)
+
+
+# ----- the switch ---------------------------------------------------------------------------------
+
+def test_switch_values_defaults_and_old_records():
+    from reconstruct import config as config_layer
+    from reconstruct.train.config import Stage1Config
+
+    assert AvatarConfig().garment_layer == "off"
+    with pytest.raises(ValueError, match="garment_layer must be one of off, auto, on"):
+        AvatarConfig(garment_layer="yes")
+    sets = config_layer.parse_overrides(Stage1Config, ["avatar.garment_layer=auto"], "Stage I")
+    assert config_layer.with_overrides(Stage1Config(), sets).avatar.garment_layer == "auto"
+    # a run recorded before the layer existed loads as "off", whatever the default becomes
+    old = Stage1Config().to_dict()
+    del old["avatar"]["garment_layer"]
+    assert Stage1Config.from_dict(old).avatar.garment_layer == "off"
+
+
+def test_off_is_the_model_before_the_layer(body):
+    """With "off": one Gaussian per texel, the parameters and state of before, and the decoded
+    Gaussians exactly the decoder's output on [S, S, uv] interpolated to the texels (the formula of
+    before, recomputed here). (Checked bit-identical against the previous commit's model and four
+    Stage I steps when the layer was wired in.)"""
+    cfg = _config(decode_resolution=24)  # decoded on a coarser grid, interpolated to the texels
+    torch.manual_seed(0)
+    m = AvatarModel(body, cfg)
+    assert m.interpolated and m.layer is None and m.num_layer == 0
+    assert m.num_gaussians == len(m.uv_map) == m.num_body
+    assert {k for k, _ in m.named_parameters()} == {"features", "decoder.color_residual"} | {
+        f"decoder.{k}" for k, _ in m.decoder.named_parameters() if k != "color_residual"}
+    assert not any(k.startswith("layer") for k in m.state_dict())
+    assert m.neighbours().shape == (m.num_gaussians, 4)
+    with torch.no_grad():
+        c = m.canonical()
+        raw = m.decoder(m.decoder_input())
+        raw = {k: (v[m.node_index] * m.node_weights[..., None]).sum(1) for k, v in raw.items()}
+        colors = torch.sigmoid(raw["color"] + cfg.color_residual_gain * m.decoder.color_residual)
+    assert c.opacities is None
+    assert torch.equal(c.colors, colors)
+    assert torch.equal(c.means, m.base_positions + cfg.offset_scale * raw["offset"])
+    posed = m.splats(c)
+    assert torch.equal(posed.opacities, torch.ones(m.num_gaussians))
+
+
+def test_on_without_loose_clothing_is_an_error_and_auto_gives_none(tiny_scene, body):
+    frames = tiny_scene.frames
+    assert garment_layer_for(body, frames, "off") is None
+    assert garment_layer_for(body, frames, "auto", "scene tiny") is None  # tight clothing: no hint
+    with pytest.raises(ValueError, match="garment_layer=on: scene tiny: the masks .* show no loose clothing"):
+        garment_layer_for(body, frames, "on", "scene tiny")
+
+
+# ----- N + M Gaussians ----------------------------------------------------------------------------
+
+def test_layer_gaussians_decode_pose_and_render(body, layer):
+    from reconstruct.body.pose import BodyPose
+
+    torch.manual_seed(0)
+    plain = AvatarModel(body, _config())
+    torch.manual_seed(0)
+    m = AvatarModel(body, _config(), layer=layer)
+    N, M = plain.num_gaussians, layer.num_gaussians
+    assert m.num_body == N and m.num_layer == M and m.num_gaussians == N + M
+    for name in ("base_positions", "base_normals", "skin_weights", "canonical_inverse", "texel_spacing",
+                 "base_tangents", "texel_steps"):
+        assert getattr(m, name).shape[0] == N + M, name
+    assert m.decoder.color_residual.shape == (N + M, 3)
+    assert tuple(m.layer_features.shape) == (1, 8, *layer.grid_shape)
+    assert torch.equal(m.base_positions[N:], layer.positions)  # the layer's rows after the body's
+    assert (m.parts()[N:] == GARMENT_PART).all() and (m.parts()[:N] == plain.parts()).all()
+    # the layer's decoder inputs lie outside the body's uv square
+    assert (m.layer_uv.abs().max(1).values > 1.0).all()
+    with torch.no_grad():
+        c, c0 = m.canonical(), plain.canonical()
+    assert c.means.shape == (N + M, 3) and c.opacities.shape == (N + M,)
+    # the body decodes as without the layer (same initial parameters; one decoder call for both)
+    assert torch.allclose(c.colors[:N], c0.colors, atol=1e-6) and torch.allclose(c.means[:N], c0.means, atol=1e-6)
+    assert torch.allclose(c.means[N:], layer.positions)  # offsets start at zero
+    assert torch.all(c.opacities[:N] == 1) and torch.allclose(c.opacities[N:], torch.full((M,), 0.5))
+    # any subset, in any order, decodes like the whole
+    idx = torch.tensor([N + 3, 5, N, 7, N + M - 1, 2])
+    with torch.no_grad():
+        ci = m.canonical(index=idx)
+    assert torch.allclose(ci.colors, c.colors[idx], atol=1e-6) and torch.allclose(ci.means, c.means[idx], atol=1e-6)
+    assert torch.equal(ci.opacities, c.opacities[idx])
+    # posing: the layer moves by its own (blended) weights, like GarmentLayer.posed
+    rng = np.random.default_rng(0)
+    pose = BodyPose(rng.normal(0, 0.15, (body.num_joints, 3)), np.array([0, 0, 0.3]), np.array([0.1, 0, 0]))
+    T = body.bone_transforms(pose)
+    with torch.no_grad():
+        posed = m.pose(c, T.float())
+    ref, _ = layer.posed(body, pose)
+    assert (posed.means[N:].double() - ref).abs().max() < 1e-4
+    assert torch.equal(posed.opacities, c.opacities)
+    # every view keeps the whole layer (a see-through sheet), culls only the body's far side
+    keep = m.facing(m.lbs_matrices(T.float()), np.array([0.0, -3.0, 0.0]))
+    assert (keep >= N).sum() == M and len(keep) < N + M
+    # rendering: the layer covers the gap between the thighs that the body alone leaves open
+    cam = _front_camera(posed.means)
+    bg = torch.zeros(3)
+    with torch.no_grad():
+        r = render_avatar(posed, cam, bg, normals=True)
+        r0 = render_avatar(plain.pose(c0, T.float()), cam, bg, normals=True)
+    assert r.rgb.shape == (64, 64, 3) and torch.isfinite(r.rgb).all()
+    assert float(r.alpha.sum()) > float(r0.alpha.sum()) * 1.02
+
+
+def test_layer_opacities_are_learnable(body, layer):
+    m = AvatarModel(body, _config(), layer=layer)
+    c = m.canonical()
+    cam = _front_camera(c.means)
+    r = render_avatar(m.splats(c), cam, torch.zeros(3), normals=False)
+    (r.alpha.sum() + r.rgb.sum()).backward()  # (colours reach the features; at the start offsets and
+    assert m.layer_opacity.grad is not None and float(m.layer_opacity.grad.abs().sum()) > 0
+    assert m.layer_features.grad is not None and float(m.layer_features.grad.abs().sum()) > 0  # scales do not)
+    groups = m.layer_param_groups(5e-4, 3e-3)
+    assert [g["name"] for g in groups] == ["layer_features", "layer_opacity"]
+    assert AvatarModel(body, _config()).layer_param_groups(5e-4, 3e-3) == []
+
+
+def test_alpha_loss_fades_the_layer_where_the_mask_is_empty(body, layer):
+    """The target mask is the body's own silhouette: the layer Gaussians that project outside it
+    (between and beside the legs) lose their opacity under the alpha-vs-mask loss."""
+    from reconstruct.train import losses as L
+
+    torch.manual_seed(0)
+    m = AvatarModel(body, _config(), layer=layer)
+    N = m.num_body
+    with torch.no_grad():
+        c = m.canonical()
+        body_only = m.splats(c)
+        body_only.opacities = torch.cat([torch.ones(N), torch.zeros(m.num_layer)])
+        cam = _front_camera(c.means)
+        mask = (render_avatar(body_only, cam, torch.zeros(3), normals=False).alpha > 0.5).float()
+        uv, z = cam.project(c.means[N:].double().numpy())
+        px = np.clip(uv.astype(int), 0, 63)
+        outside = torch.as_tensor(mask.numpy()[px[:, 1], px[:, 0]] == 0)
+    assert outside.sum() >= 4
+    start = float(torch.sigmoid(m.config.garment_opacity_gain * m.layer_opacity.detach())[outside].mean())
+    opt = torch.optim.Adam([m.layer_opacity], lr=0.02)
+    for _ in range(25):
+        opt.zero_grad()
+        with torch.no_grad():
+            base = m.canonical()
+        g = m.splats(base)
+        g.opacities = m.opacities()
+        L.mse(render_avatar(g, cam, torch.zeros(3), normals=False).alpha, mask).backward()
+        opt.step()
+    op = torch.sigmoid(m.config.garment_opacity_gain * m.layer_opacity.detach())
+    assert start == pytest.approx(0.5)
+    assert float(op[outside].mean()) < 0.25
+
+
+def test_neighbour_regulariser_zero_at_rest_grows_when_stretched_and_has_the_right_gradient(body, layer):
+    m = AvatarModel(body, _config(), layer=layer)
+    with torch.no_grad():
+        c = m.canonical()
+    edges, rest = m.layer_edge_rows()
+    assert len(edges) == len(layer.edges())
+    assert float(neighbour_strain(c.means, edges, rest)) == 0.0
+    N = m.num_body
+    centre = c.means[N:].mean(0)
+    stretched = c.means.clone()
+    stretched[N:] = centre + 1.1 * (c.means[N:] - centre)
+    s1 = float(neighbour_strain(stretched, edges, rest))
+    stretched[N:] = centre + 1.3 * (c.means[N:] - centre)
+    s3 = float(neighbour_strain(stretched, edges, rest))
+    assert s1 == pytest.approx(0.01, rel=1e-3) and s3 == pytest.approx(0.09, rel=1e-3)
+    # a subset: only the edges with both ends decoded, as rows of the subset
+    idx = torch.arange(N - 3, N + 20)
+    e_sub, r_sub = m.layer_edge_rows(idx)
+    assert len(e_sub) > 0 and int(e_sub.max()) < len(idx)
+    assert torch.equal(idx[e_sub], edges[(edges < N + 20).all(1)])
+    # the gradient against finite differences (float64)
+    g = torch.Generator().manual_seed(0)
+    pts = (layer.positions[:40].double() + 0.003 * torch.randn(40, 3, generator=g, dtype=torch.float64))
+    e = torch.as_tensor(layer.edges())
+    e = e[(e < 40).all(1)]
+    r = (layer.positions[e[:, 0]] - layer.positions[e[:, 1]]).norm(dim=1).double()
+    assert torch.autograd.gradcheck(lambda x: neighbour_strain(x, e, r), (pts.requires_grad_(),))
+
+
+# ----- training, checkpoints, exports -----------------------------------------------------------------
+
+@pytest.fixture
+def layered(tiny_scene, tiny_config, body):
+    """A Stage I trainer on the tiny scene with a hand-made layer (the scene's clothing is tight)."""
+    return _trainer(tiny_scene, tiny_config, _layer(body))
+
+
+def test_stage1_steps_train_the_layer(layered):
+    t = layered
+    m = t.model
+    assert {g["name"] for g in t.optimizer.param_groups} >= {"layer_features", "layer_opacity"}
+    before = m.layer_opacity.detach().clone()
+    for _ in range(3):
+        out = t.step()
+        assert not out.get("skipped")
+        assert "alpha" in out and "layer_spacing" in out and out["alpha"] > 0
+    assert not torch.equal(before, m.layer_opacity.detach())
+    assert t.state.seen.shape == (m.num_gaussians,)
+    snap = t.make_snapshot()
+    assert len(snap.means) == m.num_gaussians
+
+
+def test_tight_runs_have_no_layer_terms(tiny_scene, tiny_config):
+    import dataclasses
+
+    t = _trainer(tiny_scene, tiny_config, "config")  # the config says "off"
+    assert t.model.layer is None
+    out = t.step()
+    assert "alpha" not in out and "layer_spacing" not in out
+    # the trainer asks the masks: the tiny scene's clothing is tight
+    with_avatar = lambda mode: dataclasses.replace(  # noqa: E731
+        tiny_config, avatar=dataclasses.replace(tiny_config.avatar, garment_layer=mode))
+    assert _trainer(tiny_scene, with_avatar("auto"), "config").model.layer is None
+    with pytest.raises(ValueError, match="garment_layer=on: scene .* show no loose clothing"):
+        _trainer(tiny_scene, with_avatar("on"), "config")
+
+
+def test_checkpoint_round_trip_rebuilds_the_layer(layered, tiny_scene, tiny_config, tmp_path):
+    from reconstruct.train.checkpoint import garment_layer_of, load_checkpoint
+
+    t = layered
+    for _ in range(2):
+        t.step()
+    path = t.save(tmp_path / "checkpoint.pt")
+    state = load_checkpoint(path)  # read as data (weights_only)
+    saved = state["avatar"]["garment_layer"]
+    assert isinstance(saved["grid_shape"], list) and isinstance(saved["hint"]["hem_z"], float)
+    layer = garment_layer_of(state, str(path), t.state.body.num_joints)
+    assert layer.same_as(t.model.layer) and layer.hint == t.model.layer.hint
+    with torch.no_grad():
+        want = t.state.canonical(None)
+    # a trainer built without the layer ("off") takes the checkpoint's before loading it
+    t2 = _trainer(tiny_scene, tiny_config, "config")
+    assert t2.model.layer is None
+    t2.load_state_dict(state, str(path))
+    assert t2.model.layer is not None and t2.model.num_gaussians == t.model.num_gaussians
+    # ... and one built with it directly (what RunFolder.resume does)
+    t3 = _trainer(tiny_scene, tiny_config, layer)
+    t3.load_state_dict(state, str(path))
+    for tt in (t2, t3):
+        with torch.no_grad():
+            got = tt.state.canonical(None)
+        for k in ("means", "normals", "colors", "scales", "opacities"):
+            assert torch.equal(getattr(got, k), getattr(want, k)), k
+        assert torch.equal(tt.state.seen, t.state.seen)
+        out = tt.step()  # the optimiser state fits the rebuilt model
+        assert not out.get("skipped")
+
+
+def test_a_run_folder_resumes_with_its_layer(tiny_scene, tiny_config, body, tmp_path):
+    from reconstruct.run_folder import RunFolder
+
+    run = tmp_path / "run"
+    run.mkdir()
+    t = _trainer(tiny_scene, tiny_config, _layer(body), run)  # the config says "off": the layer was given
+    t.step()
+    t.save()
+    with torch.no_grad():
+        want = t.state.canonical(None)
+    resumed = RunFolder(run).resume(tiny_scene)
+    assert resumed.model.layer is not None and resumed.model.layer.same_as(t.model.layer)
+    with torch.no_grad():
+        got = resumed.state.canonical(None)
+    assert torch.equal(got.colors, want.colors) and torch.equal(got.opacities, want.opacities)
+
+
+def test_old_checkpoint_without_a_layer_loads_unchanged(tiny_scene, tiny_config, tmp_path, body):
+    from reconstruct.train.checkpoint import garment_layer_of, load_checkpoint
+
+    t = _trainer(tiny_scene, tiny_config, "config")
+    t.step()
+    path = t.save(tmp_path / "checkpoint.pt")
+    state = load_checkpoint(path)
+    assert "garment_layer" not in state["avatar"] and garment_layer_of(state) is None
+    with torch.no_grad():
+        want = t.state.canonical(None)
+    # even into a trainer that was given a layer: the checkpoint's avatar has none
+    t2 = _trainer(tiny_scene, tiny_config, _layer(body))
+    t2.load_state_dict(state, str(path))
+    assert t2.model.layer is None
+    with torch.no_grad():
+        got = t2.state.canonical(None)
+    assert torch.equal(got.means, want.means) and torch.equal(got.colors, want.colors) and got.opacities is None
+
+
+def test_malformed_layer_in_a_checkpoint_is_a_clear_error(layered):
+    from reconstruct.train.checkpoint import CheckpointError, garment_layer_of
+
+    state = layered.state_dict()
+    state["avatar"]["garment_layer"]["positions"] = torch.zeros(3, 3)
+    with pytest.raises(CheckpointError, match=r"run/checkpoint.pt: garment layer: positions must be a float tensor"):
+        garment_layer_of(state, "run/checkpoint.pt")
+    state["avatar"]["garment_layer"] = {"grid_shape": [2, 2]}
+    with pytest.raises(CheckpointError, match="garment layer: missing entries"):
+        garment_layer_of(state, "run/checkpoint.pt")
+
+
+def test_ply_export_carries_the_layer_and_its_opacities(layered, tmp_path):
+    from reconstruct.ply import read_gaussians_ply, write_snapshot_ply
+
+    t = layered
+    with torch.no_grad():
+        t.model.layer_opacity.data[::2] = -0.1  # sigmoid(10 * -0.1) = 0.27
+    snap = t.make_snapshot("canonical")
+    path = write_snapshot_ply(tmp_path / "avatar.ply", snap)
+    g = read_gaussians_ply(path)
+    N, M = t.model.num_body, t.model.num_layer
+    assert len(g.means) == N + M
+    op = np.asarray(snap.opacities)
+    assert np.all(op[:N] == 1.0) and np.all(op[N:] < 0.99)
+    assert np.allclose(op[N::2], 1 / (1 + np.exp(1.0)), atol=1e-5)
+    assert np.allclose(np.asarray(g.opacities), op, atol=1e-4)
+
+
+# ----- per-Gaussian users: edits, fills, Stage II ---------------------------------------------------
+
+def test_edits_take_the_layer(layered):
+    from reconstruct.edits import Erase, Lock
+    from reconstruct.edits.selection import part_mask
+    from reconstruct.edits.session import EditSession
+
+    t = layered
+    m = t.model
+    N, M = m.num_body, m.num_layer
+    session = EditSession(t.state, autosave=False)
+    sel = session.select_part("garment")
+    assert sel.shape == (N + M,) and sel.sum() == M and sel[N:].all()
+    assert not part_mask(m.parts(), "thigh.*")[N:].any()
+    # grow over the layer's grid: one Gaussian of the layer grows into a plus shape (wrapping round)
+    one = np.zeros(N + M, bool)
+    one[N] = True
+    session.select(one)
+    grown = session.grow(1)
+    cols = m.layer.grid_shape[1]
+    assert set(np.flatnonzero(grown)) == {N, N + 1, N + cols - 1, N + cols}
+    # erase the layer: gone from renders (opacity 0) and from snapshots
+    session.select_part("garment")
+    session.apply(Erase())
+    assert len(t.make_snapshot().means) == N
+    session.undo()
+    assert len(t.make_snapshot().means) == N + M
+    # a lock keeps the layer's opacities as they were
+    session.apply(Lock())
+    with torch.no_grad():
+        before = t.state.canonical(None).opacities.clone()
+        m.layer_opacity.data -= 0.2
+        after = t.state.canonical(None).opacities
+    assert torch.equal(before, after)
+
+
+def test_unseen_fill_covers_the_layer(layered):
+    from reconstruct.train.unseen_fill import fill_unseen_colors
+
+    t = layered
+    for _ in range(4):
+        t.step()
+    state = t.state
+    N = t.model.num_body
+    # the front half of the layer seen, the back half not
+    front = t.model.base_normals[N:, 1] < 0
+    state.seen[N:] = front
+    assert state.seen[:N].any()
+    n = fill_unseen_colors(state)
+    assert n > 0
+    assert torch.isfinite(t.model.decoder.color_residual).all()
+
+
+def test_stage2_runs_on_an_avatar_with_a_layer(layered):
+    from reconstruct.stage2.config import Stage2Config
+    from reconstruct.stage2.plan import start_stage2
+
+    t = layered
+    for _ in range(4):
+        t.step()
+    plan = start_stage2(t, Stage2Config(iters=6, num_azimuths=8, prior_size=48), allow_incomplete=True)
+    n = t.model.num_gaussians
+    assert t.state.trusted_seen.shape == (n,) and plan.pseudo_colors.shape == (n, 3)
+    assert {g["name"] for g in t.optimizer.param_groups} >= {"layer_features", "layer_opacity", "pose_encoder"}
+    # the pose map stays a map over the body's atlas
+    assert t.model.pose_map(t.state.articulation(1)).shape[0] == 3
+    kinds = set()
+    for kind in ("given", "canonical", "observation"):
+        out = t.plan.steps[kind](t)
+        assert not out.skipped
+        loss = out.loss()
+        assert torch.isfinite(loss)
+        kinds.add(kind)
+    assert kinds == {"given", "canonical", "observation"}
+    out = t.step()
+    assert not out.get("skipped")
