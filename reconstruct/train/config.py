@@ -84,6 +84,10 @@ class Stage1Config(StageSettings):
     # texels; those within fill_unseen_ring texels of a seen one keep their decoded colour
     fill_unseen: bool = True
     fill_unseen_ring: int = 1
+    # before the fill, a seen Gaussian stays seen only if the final avatar shows it on a pixel of
+    # the person in some training frame (train/seen_recount.py): Gaussians seen only off the
+    # silhouette are no colour source and are filled
+    seen_on_person: bool = True
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # each given-view step composites its target on a uniformly random colour and renders over the
@@ -134,7 +138,7 @@ class Stage1Config(StageSettings):
         """The settings before the Stage I fidelity work (GaussianAvatar's schedule, every Gaussian
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False,
-                    random_background=False, avatar=AvatarConfig.paper())
+                    seen_on_person=False, random_background=False, avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
 
     @classmethod
@@ -147,6 +151,7 @@ class Stage1Config(StageSettings):
                 d["avatar"] = {**LEGACY_AVATAR, **d["avatar"]}
         d.setdefault("fill_unseen", False)  # recorded before Stage I filled its unseen side
         d.setdefault("random_background", False)  # recorded before training on random backgrounds
+        d.setdefault("seen_on_person", False)  # recorded before the seen flags were recounted on the person
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed
         if isinstance(d.get("avatar"), dict) and "garment_layer" not in d["avatar"]:

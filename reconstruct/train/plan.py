@@ -10,11 +10,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .config import Stage1Config, StageSettings
+from .seen_recount import keep_seen_on_person
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import fill_unseen_colors
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
+    from .steps import StepContext
 
 
 class StagePlan:
@@ -37,9 +39,10 @@ class StagePlan:
         studio (e.g. λ_SDS)."""
         return {}
 
-    def finish(self, state: AvatarState) -> str | None:
+    def finish(self, context: StepContext) -> str | None:
         """Called once when the stage has used up its steps or minutes (before the final
-        evaluation and checkpoint). Returns a line for the log, or None."""
+        evaluation and checkpoint), with the loop (its avatar state and training frames). Returns
+        a line for the log, or None."""
         return None
 
     def state_dict(self) -> dict:
@@ -67,9 +70,16 @@ class Stage1Plan(StagePlan):
                 {"params": [state.model.features], "lr": c.lr_features, "name": "features"},
                 *state.model.layer_param_groups(c.lr_features, c.lr_decoder)]  # [] without a garment layer
 
-    def finish(self, state: AvatarState) -> str | None:
-        """The never-seen Gaussians take the wrap-around fill's colours (``fill_unseen``)."""
-        if not self.settings.fill_unseen:
-            return None
-        n = fill_unseen_colors(state, keep_ring=self.settings.fill_unseen_ring)
-        return f"Stage I: {n} Gaussians no training view saw were painted with the seen side's colours" if n else None
+    def finish(self, context: StepContext) -> str | None:
+        """The seen flags are recounted on the person (``seen_on_person``, train/seen_recount.py),
+        then the never-seen Gaussians take the wrap-around fill's colours (``fill_unseen``)."""
+        state, notes = context.state, []
+        if self.settings.seen_on_person:
+            k = keep_seen_on_person(state, context.data, hit_threshold=self.settings.hit_threshold)
+            if k:
+                notes.append(f"{k} Gaussians seen only off the person's silhouette are unseen")
+        if self.settings.fill_unseen:
+            n = fill_unseen_colors(state, keep_ring=self.settings.fill_unseen_ring)
+            if n:
+                notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
+        return "Stage I: " + "; ".join(notes) if notes else None

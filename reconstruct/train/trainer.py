@@ -234,7 +234,7 @@ class Trainer:
         """The plan's last act, once, when its stage has used up its steps or minutes (before the
         final evaluation and checkpoint); its time counts in the run's clock, not the stage's."""
         t0 = time.perf_counter()
-        note = self.plan.finish(self.state)
+        note = self.plan.finish(self)
         self.elapsed += time.perf_counter() - t0
         if note:
             print(note, file=sys.stderr)
