@@ -183,6 +183,7 @@ def run_steps(session, views: ViewCameras, steps: list[Step], out=print) -> None
 
 
 def edit(run_dir: Path, steps: list[Step], *, frame: int = 0, size: int = 512, list_only: bool = False) -> int:
+    from reconstruct.appearance.wrap_fill import grazing_rule_for
     from reconstruct.edits.session import EditSession
     from reconstruct.run_folder import RunFolder
 
@@ -191,7 +192,8 @@ def edit(run_dir: Path, steps: list[Step], *, frame: int = 0, size: int = 512, l
     with run.lock():
         trainer = run.resume()
         plan = trainer.plan if trainer.stage == 2 else None
-        session = EditSession(trainer.state, run_dir=run.path, plan=plan)
+        session = EditSession(trainer.state, run_dir=run.path, plan=plan,
+                              grazing_rule=grazing_rule_for(trainer.config))
         if plan is not None:
             plan.sync_visibility(trainer.state)
         if not list_only:

@@ -83,7 +83,8 @@ def test_trainer_fills_once_at_the_end_of_stage1(tiny_scene, tiny_config, tmp_pa
         t.step()
     assert calls == []
     t.step()
-    assert t.done and calls == [{"keep_ring": tiny_config.fill_unseen_ring}]
+    # trained on random backgrounds: grazing seen colours are sources (grazing_rule_for)
+    assert t.done and calls == [{"keep_ring": tiny_config.fill_unseen_ring, "grazing_rule": False}]
     t.step()  # a step past the end (the studio's single step) does not fill again
     assert len(calls) == 1
 
@@ -95,3 +96,25 @@ def test_paper_settings_and_older_runs_do_not_fill():
     old = Stage1Config().to_dict()
     del old["fill_unseen"]
     assert not Stage1Config.from_dict(old).fill_unseen
+
+
+def test_grazing_rule_only_for_a_fixed_background(trainer, monkeypatch):
+    from reconstruct.appearance.wrap_fill import grazing_rule_for
+    from reconstruct.train import unseen_fill
+    from reconstruct.train.config import Stage1Config
+
+    assert not grazing_rule_for(Stage1Config()) and grazing_rule_for(Stage1Config.paper())
+    old = Stage1Config().to_dict()
+    del old["random_background"]
+    assert grazing_rule_for(Stage1Config.from_dict(old))
+    seen_normals = []
+    real = unseen_fill.wrap_fill_colors
+
+    def spy(*a, **kw):
+        seen_normals.append(kw.get("normals"))
+        return real(*a, **kw)
+
+    monkeypatch.setattr(unseen_fill, "wrap_fill_colors", spy)
+    fill_unseen_colors(trainer.state, keep_ring=1, grazing_rule=True)
+    fill_unseen_colors(trainer.state, keep_ring=1, grazing_rule=False)
+    assert seen_normals[0] is not None and seen_normals[1] is None

@@ -138,11 +138,13 @@ class TrainerThread:
     def _make_edit_session(self) -> None:
         """The session over the trainer's avatar (before the loop starts: no step runs meanwhile).
         It loads the run folder's edits (the avatar holds them already when the run was resumed)."""
+        from reconstruct.appearance.wrap_fill import grazing_rule_for
         from reconstruct.edits.session import EditSession
 
         t = self.trainer
         try:
-            self.edit_session = EditSession(t.state, run_dir=t.run_dir, plan=t.plan if t.stage >= 2 else None)
+            self.edit_session = EditSession(t.state, run_dir=t.run_dir, plan=t.plan if t.stage >= 2 else None,
+                                            grazing_rule=grazing_rule_for(t.config))
         except (ValueError, OSError) as exc:  # a malformed edits file: editing is off, training goes on
             self.edit_error = f"editing is off: {exc}"
 

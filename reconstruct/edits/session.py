@@ -41,16 +41,19 @@ def _now() -> str:
 
 class EditSession:
     def __init__(self, state: AvatarState, *, run_dir=None, plan=None, load: bool = True,
-                 autosave: bool = True, seen_erosion: int = 2) -> None:
+                 autosave: bool = True, seen_erosion: int = 2, grazing_rule: bool = True) -> None:
         """Edits of ``state``; with ``run_dir`` they are loaded from (``load``) and saved to
         ``RUN/edits`` (``autosave``: after every change). ``plan``: the running Stage II plan, whose
         views and propagated colours follow the painted visibility. ``seen_erosion``: texels the
-        Stage I flags are shrunk by for redo's propagated colours before Stage II has its own."""
+        Stage I flags are shrunk by for redo's propagated colours before Stage II has its own.
+        ``grazing_rule``: the wrap fill's rule for grazing seen colours (``grazing_rule_for`` the
+        run's Stage I settings)."""
         self.state = state
         self.run_dir = run_dir
         self.plan = plan
         self.autosave = autosave
         self.seen_erosion = seen_erosion
+        self.grazing_rule = grazing_rule
         self.undone: list[EditEntry] = []
         self.next_id = max((e.id for e in state.edits), default=0) + 1
         if run_dir is not None and load:
@@ -208,7 +211,8 @@ class EditSession:
         model = state.model
         return wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted.cpu(),
                                 state.canonical(None).colors.detach().cpu(), self.neighbours,
-                                normals=model.base_normals.cpu(), no_mirror=state.edits.redone)
+                                normals=model.base_normals.cpu() if self.grazing_rule else None,
+                                no_mirror=state.edits.redone)
 
     def undo(self) -> EditEntry | None:
         """Removes the last edit (kept for ``redo``); None when there is none."""

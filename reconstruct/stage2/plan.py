@@ -28,7 +28,7 @@ import torch
 
 from ..camera import Camera
 from ..appearance.propagation import erode, propagate_colors
-from ..appearance.wrap_fill import wrap_fill_colors
+from ..appearance.wrap_fill import grazing_rule_for, wrap_fill_colors
 from ..priors.propagated import build_prior
 from ..train.checkpoint import STAGE1_CHECKPOINT_NAME
 from ..train.plan import StagePlan
@@ -76,6 +76,7 @@ class Stage2Plan(StagePlan):
                       "canonical": GuidanceStep("canonical", self, self.prior),
                       "observation": GuidanceStep("observation", self, self.prior)}
         self.scene = trainer.scene
+        self.grazing_rule = grazing_rule_for(trainer.config)
         self.training_frames = list(trainer.data.frames)
         self.spaces: list[SpaceViews] = []
         self.pseudo_colors: torch.Tensor | None = None
@@ -217,7 +218,7 @@ class Stage2Plan(StagePlan):
         if self.settings.propagation == "diffusion":
             return propagate_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours)
         return wrap_fill_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours,
-                                normals=model.base_normals.cpu(), no_mirror=no_mirror)
+                                normals=model.base_normals.cpu() if self.grazing_rule else None, no_mirror=no_mirror)
 
     def reference_image(self, trainer: Trainer, frame: int | None) -> torch.Tensor:
         if frame is None:

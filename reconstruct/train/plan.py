@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .config import Stage1Config, StageSettings
+from ..appearance.wrap_fill import grazing_rule_for
 from .seen_recount import keep_seen_on_person
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import fill_unseen_colors
@@ -79,7 +80,8 @@ class Stage1Plan(StagePlan):
             if k:
                 notes.append(f"{k} Gaussians seen only off the person's silhouette are unseen")
         if self.settings.fill_unseen:
-            n = fill_unseen_colors(state, keep_ring=self.settings.fill_unseen_ring)
+            n = fill_unseen_colors(state, keep_ring=self.settings.fill_unseen_ring,
+                                   grazing_rule=grazing_rule_for(self.settings))
             if n:
                 notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
         return "Stage I: " + "; ".join(notes) if notes else None

@@ -40,10 +40,12 @@ _COLOR_MARGIN = 1e-3
 
 
 @torch.no_grad()
-def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int = 0) -> int:
+def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int = 0, grazing_rule: bool = True) -> int:
     """Set the colour residual of every Gaussian the painted seen flags call unseen so that it
     decodes to the wrap-around fill's colour. Returns how many Gaussians were filled (0 when the
-    avatar has no colour residual, sees nothing or sees everything)."""
+    avatar has no colour residual, sees nothing or sees everything). ``grazing_rule``: seen
+    Gaussians seen at grazing incidence only are no colour source (``WrapFillConfig.max_seen_angle_deg``;
+    for avatars trained on one fixed background, whose silhouette colours are darkened by it)."""
     model = state.model
     cfg = model.config
     if not cfg.color_residual:
@@ -58,7 +60,7 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
         trusted = seen
     colors = model.canonical(None).colors.detach().cpu()
     filled = wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted, colors, neighbours,
-                              normals=model.base_normals.cpu(), no_mirror=state.edits.redone)
+                              normals=model.base_normals.cpu() if grazing_rule else None, no_mirror=state.edits.redone)
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
     idx = torch.nonzero(todo).squeeze(1)
     decoded_logit = model.decode_raw(None, None)["color"].detach().cpu()[idx]
