@@ -186,7 +186,7 @@ class GarmentLayer:
                   opacity: float = 0.95, scale_factor: float = 0.75):
         """The layer posed as PosedGaussians (flat discs in the cloth's tangent plane, sized by the
         grid spacing), grey unless ``colors`` (N,3) are given."""
-        from .model import PosedGaussians, frame_quaternions
+        from .gaussian_sets import PosedGaussians, frame_quaternions
 
         means, normals = self.posed(body, pose)
         M = self.skinning(body).matrices(body.bone_transforms(pose))
