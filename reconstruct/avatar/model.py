@@ -28,7 +28,7 @@ M Gaussians come AFTER the N body Gaussians, so body indices are unchanged: ever
 buffer (positions, normals, skinning weights, canonical inverses, spacing, tangents, steps) and the
 colour residual have N + M rows, and ``canonical(index=...)``, ``facing``, ``lbs_matrices``,
 ``pose_with`` and ``splats`` take indices into N + M. The layer has its own feature map
-``layer_features`` (1, C, rows, cols) over its grid (columns wrap round), decoded by the same
+``layer_features`` (1, C, rows, cols) over its grid (one feature vector per grid point), decoded by the same
 decoder with the same input width: [L, L, uv] where the layer's "uv" lies on an annulus of radius
 1.5-2.5 round the origin (angle = the column's angle round the tube, radius = the row), outside the
 body's [-1, 1] square and continuous across the seam -- so the decoder can tell layer from body and
@@ -82,18 +82,6 @@ def _layer_uv(rows: int, cols: int) -> torch.Tensor:
     theta = (torch.arange(cols, dtype=torch.float64) * (2 * math.pi / cols))[None].expand(rows, cols)
     radius = 1.5 + r / max(rows - 1, 1)
     return torch.stack([radius * torch.cos(theta), radius * torch.sin(theta)], -1).reshape(-1, 2).float()
-
-
-def sample_wrapped(feature_map: torch.Tensor, rc: torch.Tensor) -> torch.Tensor:
-    """(1,C,R,W) map sampled bilinearly at (row, column) grid coordinates ``rc`` (M,2) (integers:
-    the grid points themselves), columns wrapping round, rows clamped -> (M,C)."""
-    _, _, R, W = feature_map.shape
-    padded = torch.cat([feature_map[..., -1:], feature_map, feature_map[..., :1]], dim=-1)
-    x = (rc[:, 1] + 1) / (W + 1) * 2 - 1  # column c sits at padded column c + 1 (align_corners)
-    y = rc[:, 0] / max(R - 1, 1) * 2 - 1
-    grid = torch.stack([x, y], 1).to(feature_map.dtype)
-    out = F.grid_sample(padded, grid[None, None], mode="bilinear", padding_mode="border", align_corners=True)
-    return out[0, :, 0].T
 
 
 class AvatarModel(nn.Module):
@@ -161,7 +149,7 @@ class AvatarModel(nn.Module):
             logit = math.log(config.garment_opacity_init / (1 - config.garment_opacity_init))
             self.layer_opacity = nn.Parameter(torch.full((layer.num_gaussians,), logit / config.garment_opacity_gain))
             rc = torch.stack(torch.meshgrid(torch.arange(rows), torch.arange(cols), indexing="ij"), -1).reshape(-1, 2)
-            self.register_buffer("layer_rc", rc.float(), persistent=False)
+            self.register_buffer("layer_rc", rc, persistent=False)  # (M,2) row, column of each grid point
             self.register_buffer("layer_uv", _layer_uv(rows, cols), persistent=False)
             edges = torch.as_tensor(layer.edges())
             p = layer.positions.float()
@@ -231,7 +219,7 @@ class AvatarModel(nn.Module):
         feature map at their grid points and their annulus coordinates (``_layer_uv``)."""
         rc = self.layer_rc if index is None else self.layer_rc[index]
         uv = self.layer_uv if index is None else self.layer_uv[index]
-        s = sample_wrapped(self.layer_features, rc)
+        s = self.layer_features[0][:, rc[:, 0], rc[:, 1]].T  # each Gaussian sits on a grid point of the map
         return torch.cat([s, s, uv], dim=1)
 
     def _body_nodes(self, pose_features: torch.Tensor | None, index: torch.Tensor | None):

@@ -31,6 +31,13 @@ from .model import AvatarModel, CanonicalGaussians, PosedGaussians
 SPACES = ("observation", "canonical")
 
 
+def facing_hits(hits: torch.Tensor, posed: PosedGaussians, camera) -> torch.Tensor:
+    """The entries of ``hits`` (Gaussian ids, repeats kept) whose posed Gaussian faces ``camera``:
+    Eq. 7's facing test (``AvatarState.mark_seen``, the end-of-Stage-I recount)."""
+    centre = torch.as_tensor(camera.center, dtype=posed.means.dtype, device=posed.means.device)
+    return hits[((posed.means[hits] - centre) * posed.normals[hits]).sum(1) < 0]
+
+
 class AvatarState:
     def __init__(self, body: BodyModel, model: AvatarModel, poses: list[BodyPose], *,
                  refine_poses: bool = False) -> None:
@@ -227,9 +234,6 @@ class AvatarState:
         """Paper Eq. 7: a Gaussian is seen when it is the first hit of a training ray -- counted only
         where it faces the camera. Without the facing test, Gaussians on the back of thin limbs whose
         footprint spills past the outline are first hits on outline pixels and would be marked seen."""
-        hits = torch.unique(first_hit[first_hit >= 0])
-        if len(hits) == 0:
-            return
-        centre = torch.as_tensor(camera.center, dtype=posed.means.dtype, device=posed.means.device)
-        facing = ((posed.means[hits] - centre) * posed.normals[hits]).sum(1) < 0
-        self.seen[hits[facing].cpu()] = True
+        hits = facing_hits(torch.unique(first_hit[first_hit >= 0]), posed, camera)
+        if len(hits):
+            self.seen[hits.cpu()] = True

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from ..avatar.state import facing_hits
 from .render import render_avatar
 
 if TYPE_CHECKING:
@@ -43,10 +44,8 @@ def person_first_hits(state: AvatarState, data: TrainingData, *, hit_threshold: 
         posed = state.posed(i)
         r = render_avatar(posed, tgt.camera, data.background, normals=False, first_hit=True,
                           hit_threshold=hit_threshold)
-        hits = r.first_hit[(tgt.mask > PERSON) & (r.first_hit >= 0)]
-        centre = torch.as_tensor(tgt.camera.center, dtype=posed.means.dtype, device=posed.means.device)
-        facing = ((posed.means[hits] - centre) * posed.normals[hits]).sum(1) < 0
-        counts += torch.bincount(hits[facing].cpu(), minlength=n)
+        hits = facing_hits(r.first_hit[(tgt.mask > PERSON) & (r.first_hit >= 0)], posed, tgt.camera)
+        counts += torch.bincount(hits.cpu(), minlength=n)
     return counts
 
 

@@ -118,7 +118,7 @@ class GivenViewStep(TrainingStep):
         if not gaussians_finite(posed):
             return StepOutcome(i, skipped=True)
         background, image = data.background, tgt.image
-        if getattr(cfg, "random_background", False):
+        if cfg.random_background:
             # from the loop's own generator (saved in checkpoints), not torch's global one
             background = torch.as_tensor(trainer.rng.random(3), dtype=image.dtype, device=image.device)
             image = composite_on(tgt, background, data.background)
