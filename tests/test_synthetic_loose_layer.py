@@ -76,3 +76,44 @@ def test_layer_gaussians_cover_the_gap_between_the_legs(scenes, body):
 def test_hint_rejects_bad_heights():
     with pytest.raises(ValueError, match="below the top"):
         VolumeHint(top_z=-0.5, hem_z=0.1)
+
+
+def _with_mask(frame, mask):
+    return dataclasses.replace(frame, mask=mask.astype(np.float32))
+
+
+def test_hint_ignores_a_sliver_at_the_crotch_and_a_patch_at_the_ankles(scenes, body):
+    """Tight trousers on a body fitted with its crotch a little high cover the body's gap for a few
+    centimetres below the crotch; feet touching cover it at the ankles: neither is cloth."""
+    from reconstruct.avatar.garment_layer import frame_hint_evidence
+
+    skirt, tight = scenes["skirt"].frames[0], scenes["garment"].frames[0]
+    full = frame_hint_evidence(body, skirt)
+    assert full.cloth and full.drop > 0.1, full
+    first, hem = full.rows
+    m_skirt, m_tight = np.asarray(skirt.mask) > 0.5, np.asarray(tight.mask) > 0.5
+    # the skirt's mask down to a few centimetres below the crotch, the tight mask below
+    metres_per_px = full.drop / (hem - first)
+    cut = first + int(0.05 / metres_per_px) + 1
+    sliver = m_tight.copy()
+    sliver[:cut] |= m_skirt[:cut]
+    e = frame_hint_evidence(body, _with_mask(tight, sliver))
+    assert e.testable and not e.cloth, e
+    # and the same down past the hem: cloth again (the test above is not vacuous)
+    assert frame_hint_evidence(body, _with_mask(tight, m_tight | m_skirt)).cloth
+    # the gap filled only over the lowest rows of the legs (feet together): not cloth
+    rows = np.flatnonzero(m_tight.any(1))
+    ankles = m_tight.copy()
+    low = slice(rows.max() - 6, rows.max() - 1)
+    cols = np.flatnonzero(m_tight[low].any(0))
+    ankles[low, cols.min():cols.max() + 1] = True
+    e = frame_hint_evidence(body, _with_mask(tight, ankles))
+    assert not e.cloth, e
+
+
+def test_hint_needs_cloth_in_half_the_testable_frames(scenes, body):
+    skirt, tight = scenes["skirt"].frames, scenes["garment"].frames
+    one_in_four = [skirt[0], *tight[1:]]
+    assert volume_hint_from_masks(body, one_in_four) is None
+    three_in_four = [*skirt[:3], tight[3]]
+    assert volume_hint_from_masks(body, three_in_four) is not None

@@ -311,50 +311,99 @@ def _body_silhouette(body: BodyModel, pose: BodyPose, camera, shape: tuple[int, 
     return binary_dilation(sil, iterations=grow) if grow else sil
 
 
-def volume_hint_from_masks(body: BodyModel, frames, *, max_frames: int = 8, min_cover: float = 0.9,
-                           min_rows: int = 3) -> VolumeHint | None:
-    """A VolumeHint from front-view ``frames`` (each with ``mask``, ``camera``, ``pose``): image rows
-    between the projected leg axes where the body itself leaves a gap (background between the legs
-    of the posed body's own silhouette) and the mask covers that gap are cloth; the lowest is the
-    hem (its canonical height interpolated along the legs from hip to knee to ankle, median over
-    frames), the mask's width there beyond the body's is the flare. None when fewer than
-    ``min_rows`` rows show cloth in every frame (tight clothing)."""
+@dataclass(frozen=True)
+class HintEvidence:
+    """What one front-view frame says about loose clothing (``frame_hint_evidence``).
+
+    ``testable``: the posed body leaves a gap between its legs wide enough to test (at least
+    ``min_gap`` metres over ``min_span`` metres of height); ``cloth``: the mask covers that gap in
+    one run that starts at the crotch and reaches at least ``min_drop`` metres down the legs;
+    ``hem_z``: the canonical height of the run's lowest row; ``flare``: metres the mask is wider
+    than the body there (half the difference)."""
+
+    testable: bool
+    cloth: bool
+    hem_z: float | None = None
+    flare: float | None = None
+    drop: float = 0.0  # metres from the first tested row (the crotch) down to the run's lowest row
+    rows: tuple[int, int] | None = None  # image rows: the first tested one, the run's lowest
+
+
+def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_gap: float = 0.015,
+                        min_span: float = 0.05, min_drop: float = 0.10, max_break: float = 0.03,
+                        max_start: float = 0.08) -> HintEvidence:
+    """One frame's evidence (``HintEvidence``). Image rows run from the projected hip joints down to
+    the ankles; in each, the pixels between the two leg axes that the posed body's own silhouette
+    leaves as background are the gap; a row is tested when its gap is at least ``min_gap`` wide (in
+    metres at the legs' depth: a body fitted a little thinner than the person leaves slivers that
+    say nothing) and covered when the mask covers ``min_cover`` of it. Cloth is one run of covered
+    rows that begins within ``max_start`` metres of the first tested row (cloth hangs from the hips:
+    a skirt covers the crotch), with breaks of at most ``max_break``, and reaches ``min_drop``
+    metres below the hip joints: trousers whose fitted crotch sits a little high, or feet touching
+    at the ankles, are not cloth."""
     L = body.bone_labels
     names = {s: [f"upperleg01.{s}", f"lowerleg01.{s}", f"foot.{s}"] for s in "LR"}
     marks = landmark_heights(body)
     cz = np.array([marks["hips"] - 0.06, marks["knee"], marks["ankle"]])  # canonical heights of the chain
+    mask = np.asarray(frame.mask) > 0.5
+    J = body.posed_joints(frame.pose).numpy()
+    uv = {s: frame.camera.project(J[[L.index(n) for n in names[s]]])[0] for s in "LR"}
+    depth = float(frame.camera.project(J[[L.index("upperleg01.L")]])[1][0])
+    metres_per_px = depth / float(frame.camera.fx)
+    top = int(np.ceil(max(uv["L"][0, 1], uv["R"][0, 1])))
+    bottom = int(np.floor(min(uv["L"][2, 1], uv["R"][2, 1])))
+    rows = np.arange(max(top, 0), min(bottom, mask.shape[0]))
+    if len(rows) < 4:
+        return HintEvidence(False, False)
+    sil = _body_silhouette(body, frame.pose, frame.camera, mask.shape)
+    xl, xr = _leg_axis_x(uv["L"], rows), _leg_axis_x(uv["R"], rows)
+    tested, covered = [], []
+    for r, a, b in zip(rows, np.minimum(xl, xr), np.maximum(xl, xr)):
+        a, b = max(int(np.ceil(a)), 0), min(int(np.floor(b)), mask.shape[1] - 1)
+        gap = ~sil[r, a:b + 1]  # between the leg axes, where the body leaves the background
+        if gap.sum() * metres_per_px < min_gap:
+            continue
+        tested.append(r)
+        if mask[r, a:b + 1][gap].mean() >= min_cover:
+            covered.append(r)
+    if len(tested) < 2 or (tested[-1] - tested[0]) * metres_per_px < min_span:
+        return HintEvidence(False, False)
+    if not covered or (covered[0] - tested[0]) * metres_per_px > max_start:
+        return HintEvidence(True, False)
+    hem_row = covered[0]
+    for r in covered[1:]:
+        if (r - hem_row) * metres_per_px > max_break:
+            break
+        hem_row = r
+    drop = (hem_row - tested[0]) * metres_per_px
+    if drop < min_drop:
+        return HintEvidence(True, False, drop=drop, rows=(tested[0], hem_row))
+    hem_z = float(np.interp(hem_row, uv["L"][:, 1], cz))  # along hip -> knee -> ankle
+    on, body_on = np.flatnonzero(mask[hem_row]), np.flatnonzero(sil[hem_row])
+    flare = None
+    if len(on) and len(body_on):
+        flare = max(0.0, ((on.max() - on.min()) - (body_on.max() - body_on.min())) / 2) * metres_per_px
+    return HintEvidence(True, True, hem_z, flare, drop, (tested[0], hem_row))
+
+
+def volume_hint_from_masks(body: BodyModel, frames, *, max_frames: int = 8, min_share: float = 0.5,
+                           **evidence) -> VolumeHint | None:
+    """A VolumeHint from front-view ``frames`` (each with ``mask``, ``camera``, ``pose``), or None
+    for tight clothing. Up to ``max_frames`` frames spread over the sequence are read with
+    ``frame_hint_evidence`` (``evidence``: its thresholds); loose clothing is when at least
+    ``min_share`` of the testable frames show cloth (a walk's frames with the legs together test
+    nothing; one frame where trousers look like cloth does not make a skirt). The hem is the
+    median over the cloth frames (canonical height along the legs), the flare the median of their
+    flares (clipped to 2-15 cm); the top is the waist."""
     picks = np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)
-    hems, flares = [], []
-    for fi in sorted(set(picks.tolist())):
-        f = frames[fi]
-        mask = np.asarray(f.mask) > 0.5
-        J = body.posed_joints(f.pose).numpy()
-        uv = {s: f.camera.project(J[[L.index(n) for n in names[s]]])[0] for s in "LR"}
-        depth = float(f.camera.project(J[[L.index("upperleg01.L")]])[1][0])
-        sil = _body_silhouette(body, f.pose, f.camera, mask.shape)
-        top = int(np.ceil(max(uv["L"][0, 1], uv["R"][0, 1])))
-        bottom = int(np.floor(min(uv["L"][2, 1], uv["R"][2, 1])))
-        rows = np.arange(max(top, 0), min(bottom, mask.shape[0]))
-        if len(rows) < 4:
-            continue
-        xl, xr = _leg_axis_x(uv["L"], rows), _leg_axis_x(uv["R"], rows)
-        covered = []
-        for r, a, b in zip(rows, np.minimum(xl, xr), np.maximum(xl, xr)):
-            a, b = max(int(np.ceil(a)), 0), min(int(np.floor(b)), mask.shape[1] - 1)
-            gap = ~sil[r, a:b + 1]  # between the leg axes, where the body leaves the background
-            if gap.sum() >= 2 and mask[r, a:b + 1][gap].mean() >= min_cover:
-                covered.append(r)
-        if len(covered) < min_rows:
-            continue
-        hem_row = max(covered)
-        hems.append(float(np.interp(hem_row, uv["L"][:, 1], cz)))  # along hip -> knee -> ankle
-        on, body_on = np.flatnonzero(mask[hem_row]), np.flatnonzero(sil[hem_row])
-        if len(on) and len(body_on):
-            extra_px = max(0.0, ((on.max() - on.min()) - (body_on.max() - body_on.min())) / 2)
-            flares.append(extra_px * depth / f.camera.fx)
-    if not hems:
+    seen = [frame_hint_evidence(body, frames[i], **evidence) for i in sorted(set(picks.tolist()))]
+    testable = [e for e in seen if e.testable]
+    cloth = [e for e in testable if e.cloth]
+    if not cloth or len(cloth) < min_share * len(testable):
         return None
-    hem = float(np.median(hems))
+    marks = landmark_heights(body)
+    hem = float(np.median([e.hem_z for e in cloth]))
+    flares = [e.flare for e in cloth if e.flare is not None]
     flare = float(np.clip(np.median(flares) if flares else 0.05, 0.02, 0.15))
     return VolumeHint(top_z=marks["waist"], hem_z=min(hem, marks["hips"] - 0.1), standoff_hem=flare)
 
