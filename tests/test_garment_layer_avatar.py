@@ -55,7 +55,8 @@ def test_switch_values_defaults_and_old_records():
     from reconstruct import config as config_layer
     from reconstruct.train.config import Stage1Config
 
-    assert AvatarConfig().garment_layer == "off"
+    assert AvatarConfig().garment_layer == "auto"
+    assert AvatarConfig.paper().garment_layer == "off" and Stage1Config.paper().avatar.garment_layer == "off"
     with pytest.raises(ValueError, match="garment_layer must be one of off, auto, on"):
         AvatarConfig(garment_layer="yes")
     sets = config_layer.parse_overrides(Stage1Config, ["avatar.garment_layer=auto"], "Stage I")
@@ -251,6 +252,47 @@ def test_stage1_steps_train_the_layer(layered):
     assert t.state.seen.shape == (m.num_gaussians,)
     snap = t.make_snapshot()
     assert len(snap.means) == m.num_gaussians
+
+
+def test_auto_on_tight_clothing_trains_exactly_as_off(tiny_scene, tiny_config):
+    """The default ``auto`` reads the masks, finds tight clothing and builds the model of ``off``:
+    the same losses and parameters after two steps (no random numbers drawn by the hint)."""
+    import dataclasses
+
+    runs = {}
+    for mode in ("off", "auto"):
+        cfg = dataclasses.replace(tiny_config, avatar=dataclasses.replace(tiny_config.avatar, garment_layer=mode))
+        t = _trainer(tiny_scene, cfg, "config")
+        runs[mode] = (t, [t.step()["loss"] for _ in range(2)])
+    assert runs["auto"][0].model.layer is None
+    assert runs["auto"][1] == runs["off"][1]
+    for a, b in zip(runs["auto"][0].model.parameters(), runs["off"][0].model.parameters()):
+        assert torch.equal(a, b)
+
+
+def test_opacity_prior_is_the_mean_transparency_and_raises_hidden_opacities(tiny_scene, tiny_config, body):
+    """``lambda_layer_opaque``: the term is mean(1 - opacity) over the layer's Gaussians, absent at
+    0; with only it (every other weight 0) the layer's opacities go up."""
+    import dataclasses
+
+    from reconstruct.train.steps import GivenViewStep
+
+    t = _trainer(tiny_scene, dataclasses.replace(tiny_config, lambda_layer_opaque=0.5), _layer(body))
+    m = t.model
+    outcome = GivenViewStep(t.config)(t)
+    want = float((1 - m.opacities()[m.num_body:]).detach().mean())
+    assert abs(float(outcome.terms["layer_opaque"]) - want) < 1e-6
+    assert outcome.weights["layer_opaque"] == 0.5
+    assert abs(want - 0.5) < 1e-5  # the layer starts at opacity 0.5
+    off = _trainer(tiny_scene, tiny_config, _layer(body))
+    assert "layer_opaque" not in off.step()
+    only = {f.name: 0.0 for f in dataclasses.fields(tiny_config) if f.name.startswith("lambda_")}
+    t = _trainer(tiny_scene, dataclasses.replace(tiny_config, **{**only, "lambda_layer_opaque": 1.0}), _layer(body))
+    before = t.model.opacities()[t.model.num_body:].detach().clone()
+    for _ in range(3):
+        t.step()
+    after = t.model.opacities()[t.model.num_body:].detach()
+    assert bool((after > before).all()), (before.mean(), after.mean())
 
 
 def test_tight_runs_have_no_layer_terms(tiny_scene, tiny_config):

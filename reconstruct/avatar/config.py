@@ -44,8 +44,9 @@ class AvatarConfig:
     # loose clothing (docs/loose_clothing.md): a second set of Gaussians on a tube round the hips and
     # legs, after the body's. "off": none; "auto": built at the start of training when the masks show
     # loose clothing (garment_layer.volume_hint_from_masks), none for tight clothing; "on": the same,
-    # an error when they show none. Runs recorded before the layer existed load as "off".
-    garment_layer: str = "off"
+    # an error when they show none. Runs recorded before the layer existed load as "off"; so does
+    # paper() (the paper has no layer).
+    garment_layer: str = "auto"
     garment_opacity_init: float = 0.5  # initial opacity of the layer's Gaussians (the body's are 1)
     # a layer Gaussian's opacity is sigmoid(gain x its parameter), the parameter trained at the
     # decoder's learning rate: the gain is the opacity logit's learning rate relative to the decoder's
@@ -56,7 +57,7 @@ class AvatarConfig:
         """The paper's Gaussians and the earlier defaults: isotropic, identity rotation, no scale
         floor, one decoded Gaussian per texel of a 128 x 128 map, no colour residual."""
         base = dict(gaussian_resolution=128, decode_resolution=None, splat="sphere", scale_floor=0.0,
-                    init_scale_factor=0.6, color_residual=False)
+                    init_scale_factor=0.6, color_residual=False, garment_layer="off")
         return cls(**{**base, **kw})
 
     @property

@@ -65,6 +65,11 @@ class Stage1Config(StageSettings):
     # its grid neighbours' canonical distances, garment_layer.neighbour_strain)
     lambda_alpha: float = 1.0
     lambda_layer_spacing: float = 1.0
+    # cloth is opaque: mean (1 - opacity) over the layer's Gaussians. Without it the layer in front
+    # of a leg could stay half transparent (the leg behind it learning the cloth's colour), which
+    # shows as translucent cloth and as cloth painted on the legs once they move; the alpha loss
+    # still fades the layer where the silhouette shows nothing
+    lambda_layer_opaque: float = 0.0
     # learning-rate decay over the budget (steps or minutes, whichever ends first): constant until
     # lr_decay_start of the stage, then geometric down to lr_final x at its end. GaussianAvatar's
     # x lr_gamma drops at 1/3 and 2/3 (``lr_milestones``; used instead when set, as in ``paper()``)

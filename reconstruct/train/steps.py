@@ -148,6 +148,9 @@ class GivenViewStep(TrainingStep):
             edges, rest = model.layer_edge_rows(index)
             terms["layer_spacing"] = neighbour_strain(canon.means, edges, rest)
             weights["layer_spacing"] = cfg.lambda_layer_spacing
+            if cfg.lambda_layer_opaque:
+                terms["layer_opaque"] = (1.0 - model.opacities()[model.num_body:]).mean()
+                weights["layer_opaque"] = cfg.lambda_layer_opaque
         info = {"psnr_train": float(-10 * torch.log10(terms["rgb"].detach().clamp_min(1e-12)))}
         after = None
         if self.marks_seen:
