@@ -270,6 +270,20 @@ def test_auto_on_tight_clothing_trains_exactly_as_off(tiny_scene, tiny_config):
         assert torch.equal(a, b)
 
 
+def test_a_body_without_the_leg_chain_gets_no_layer_with_auto_and_an_error_with_on(tiny_scene, body):
+    """Dataset loaders bring SMPL bodies (other bone names): ``auto`` trains without a layer."""
+    import types
+
+    from reconstruct.avatar.garment_layer import missing_layer_bones
+
+    assert missing_layer_bones(body) == []
+    renamed = types.SimpleNamespace(bone_labels=[b.replace("upperleg01", "L_Hip") for b in body.bone_labels])
+    assert missing_layer_bones(renamed) == ["upperleg01.L", "upperleg01.R"]
+    assert garment_layer_for(renamed, tiny_scene.frames, "auto") is None
+    with pytest.raises(ValueError, match="garment_layer=on: scene: its body model has no upperleg01.L"):
+        garment_layer_for(renamed, tiny_scene.frames, "on")
+
+
 def test_opacity_prior_is_the_mean_transparency_and_raises_hidden_opacities(tiny_scene, tiny_config, body):
     """``lambda_layer_opaque``: the term is mean(1 - opacity) over the layer's Gaussians, absent at
     0; with only it (every other weight 0) the layer's opacities go up."""

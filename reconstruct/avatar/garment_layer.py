@@ -418,13 +418,29 @@ def neighbour_strain(means: torch.Tensor, edges: torch.Tensor, rest: torch.Tenso
     return ((d / rest - 1.0) ** 2).mean()
 
 
+LAYER_BONES = ("spine03", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R", "foot.L", "foot.R")
+
+
+def missing_layer_bones(body: BodyModel) -> list[str]:
+    """The bones the layer is placed along (``LAYER_BONES``) that ``body`` lacks ([] for Anny)."""
+    return [b for b in LAYER_BONES if b not in body.bone_labels]
+
+
 def garment_layer_for(body: BodyModel, frames, mode: str, what: str = "scene") -> GarmentLayer | None:
     """The layer a run asks for (``AvatarConfig.garment_layer``): ``off`` none; ``auto`` the layer of
     the masks' volume hint (``volume_hint_from_masks`` over ``frames``), none for tight clothing;
-    ``on`` the same, an error when the masks show no loose clothing."""
+    ``on`` the same, an error when the masks show no loose clothing. A body without Anny's leg
+    chain (``missing_layer_bones``: an SMPL body from a dataset loader) gets none with ``auto``
+    and a clear error with ``on``."""
     if mode not in GARMENT_LAYER_MODES:
         raise ValueError(f"avatar.garment_layer must be one of {', '.join(GARMENT_LAYER_MODES)}, found {mode!r}")
     if mode == "off":
+        return None
+    missing = missing_layer_bones(body)
+    if missing:  # e.g. an SMPL body from a dataset loader: the layer is placed along Anny's leg chain
+        if mode == "on":
+            raise ValueError(f"avatar.garment_layer=on: {what}: its body model has no {', '.join(missing)} "
+                             f"bones; the garment layer needs the Anny body's leg chain")
         return None
     hint = volume_hint_from_masks(body, frames)
     if hint is None:
