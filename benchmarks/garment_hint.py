@@ -1,5 +1,5 @@
 """What the garment layer's volume hint reads from scenes (``garment_layer.frame_hint_evidence``
-per frame, ``volume_hint_from_masks`` for the scene): one row per scene with each sampled frame's
+per sampled frame, ``hint_from_evidence`` for the scene: ``volume_hint_from_masks`` in two parts): one row per scene with each sampled frame's
 evidence -- ``C0.28`` cloth reaching 0.28 m below the fitted body's crotch, ``t0.06`` testable
 (the body leaves a gap between its legs) but no cloth (a covered run only 0.06 m long), ``-``
 nothing to test -- and the hint (hem height, flare) or none. This is what ``avatar.garment_layer
@@ -15,27 +15,21 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from reconstruct.avatar.garment_layer import build_garment_layer, frame_hint_evidence, volume_hint_from_masks  # noqa: E402
+from reconstruct.avatar.garment_layer import build_garment_layer, hint_from_evidence, scene_hint_evidence  # noqa: E402
 from reconstruct.data.load import load_scene  # noqa: E402
 
 
 def evidence_row(spec: str) -> str:
     scene = load_scene(spec, progress=False)
     body = scene.body_model()
-    frames = scene.frames
-    picks = sorted(set(np.linspace(0, len(frames) - 1, min(8, len(frames))).round().astype(int).tolist()))
-    marks = []
-    for i in picks:
-        e = frame_hint_evidence(body, frames[i])
-        marks.append(f"C{e.drop:.2f}" if e.cloth else f"t{e.drop:.2f}" if e.testable else "-")
-    hint = volume_hint_from_masks(body, frames)
+    evidence = scene_hint_evidence(body, scene.frames)
+    marks = [f"C{e.drop:.2f}" if e.cloth else f"t{e.drop:.2f}" if e.testable else "-" for e in evidence]
+    hint = hint_from_evidence(body, evidence)
     said = "none" if hint is None else (f"hem {hint.hem_z:+.3f} m, flare {100 * hint.standoff_hem:.1f} cm, "
                                         f"{build_garment_layer(body, hint).num_gaussians:,} Gaussians")
-    return f"| {spec} | {len(frames)} | {' '.join(marks)} | {said} |"
+    return f"| {spec} | {len(scene.frames)} | {' '.join(marks)} | {said} |"
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -339,7 +339,8 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
     say nothing) and covered when the mask covers ``min_cover`` of it. Cloth is one run of covered
     rows that begins within ``max_start`` metres of the first tested row (cloth hangs from the hips:
     a skirt covers the crotch), with breaks of at most ``max_break``, and reaches ``min_drop``
-    metres below the hip joints: trousers whose fitted crotch sits a little high, or feet touching
+    metres below the first tested row (the fitted body's crotch): trousers whose fitted crotch sits
+    a little high, or feet touching
     at the ankles, are not cloth."""
     L = body.bone_labels
     names = {s: [f"upperleg01.{s}", f"lowerleg01.{s}", f"foot.{s}"] for s in "LR"}
@@ -386,18 +387,20 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
     return HintEvidence(True, True, hem_z, flare, drop, (tested[0], hem_row))
 
 
-def volume_hint_from_masks(body: BodyModel, frames, *, max_frames: int = 8, min_share: float = 0.5,
-                           **evidence) -> VolumeHint | None:
-    """A VolumeHint from front-view ``frames`` (each with ``mask``, ``camera``, ``pose``), or None
-    for tight clothing. Up to ``max_frames`` frames spread over the sequence are read with
-    ``frame_hint_evidence`` (``evidence``: its thresholds); loose clothing is when at least
-    ``min_share`` of the testable frames show cloth (a walk's frames with the legs together test
-    nothing; one frame where trousers look like cloth does not make a skirt). The hem is the
+def scene_hint_evidence(body: BodyModel, frames, *, max_frames: int = 8, **thresholds) -> list[HintEvidence]:
+    """``frame_hint_evidence`` (with its ``thresholds``) for up to ``max_frames`` frames spread
+    evenly over the sequence."""
+    picks = np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)
+    return [frame_hint_evidence(body, frames[i], **thresholds) for i in sorted(set(picks.tolist()))]
+
+
+def hint_from_evidence(body: BodyModel, evidence: list[HintEvidence], *, min_share: float = 0.5) -> VolumeHint | None:
+    """A VolumeHint from the frames' evidence, or None for tight clothing: loose clothing is when at
+    least ``min_share`` of the testable frames show cloth (a walk's frames with the legs together
+    test nothing; one frame where trousers look like cloth does not make a skirt). The hem is the
     median over the cloth frames (canonical height along the legs), the flare the median of their
     flares (clipped to 2-15 cm); the top is the waist."""
-    picks = np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)
-    seen = [frame_hint_evidence(body, frames[i], **evidence) for i in sorted(set(picks.tolist()))]
-    testable = [e for e in seen if e.testable]
+    testable = [e for e in evidence if e.testable]
     cloth = [e for e in testable if e.cloth]
     if not cloth or len(cloth) < min_share * len(testable):
         return None
@@ -406,6 +409,14 @@ def volume_hint_from_masks(body: BodyModel, frames, *, max_frames: int = 8, min_
     flares = [e.flare for e in cloth if e.flare is not None]
     flare = float(np.clip(np.median(flares) if flares else 0.05, 0.02, 0.15))
     return VolumeHint(top_z=marks["waist"], hem_z=min(hem, marks["hips"] - 0.1), standoff_hem=flare)
+
+
+def volume_hint_from_masks(body: BodyModel, frames, *, max_frames: int = 8, min_share: float = 0.5,
+                           **thresholds) -> VolumeHint | None:
+    """A VolumeHint from front-view ``frames`` (each with ``mask``, ``camera``, ``pose``), or None
+    for tight clothing: ``hint_from_evidence`` over ``scene_hint_evidence``."""
+    return hint_from_evidence(body, scene_hint_evidence(body, frames, max_frames=max_frames, **thresholds),
+                              min_share=min_share)
 
 
 def neighbour_strain(means: torch.Tensor, edges: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
@@ -446,8 +457,8 @@ def garment_layer_for(body: BodyModel, frames, mode: str, what: str = "scene") -
     if hint is None:
         if mode == "on":
             raise ValueError(f"avatar.garment_layer=on: {what}: the masks of its {len(frames)} training frames show "
-                             f"no loose clothing (no frame where the mask covers the gap the body leaves between the "
-                             f"legs), so there is nowhere to put a garment layer; use avatar.garment_layer=auto to "
+                             f"no loose clothing (in fewer than half of the frames that can show it does the mask "
+                             f"cover the gap the body leaves between the legs), so there is nowhere to put a garment layer; use avatar.garment_layer=auto to "
                              f"train without one in that case")
         return None
     return build_garment_layer(body, hint)
