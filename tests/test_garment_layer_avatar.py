@@ -474,6 +474,90 @@ def test_unseen_fill_covers_the_layer(layered):
     assert torch.isfinite(t.model.decoder.color_residual).all()
 
 
+def test_untrained_layer_gaussians_take_the_trained_cloths_opacity_at_their_height(layered):
+    """The layer Gaussians no training camera faced get the median opacity of the row's trained
+    ones (eroded); rows without any take the nearest row's; trained ones (opaque or made
+    transparent), painted-seen ones and the body stay as they were."""
+    from reconstruct.appearance.propagation import erode
+    from reconstruct.train.unseen_fill import fill_unseen_layer_opacity
+
+    t = layered
+    m, state = t.model, t.state
+    N = m.num_body
+    R, C = m.layer.grid_shape
+    rows = m.layer_rc[:, 0]
+    cols = m.layer_rc[:, 1]
+    saved_seen, saved_op = state.seen.clone(), m.layer_opacity.detach().clone()
+    try:
+        g = m.config.garment_opacity_gain
+        with torch.no_grad():  # opacity varies along each row and down the rows
+            m.layer_opacity.copy_(torch.logit(0.2 + 0.6 * (cols.float() / C) * (rows.float() + 1) / R) / g)
+        trained = (cols < C // 2) & (rows < R - 1)  # half the columns faced a camera; the last row none
+        state.seen[:] = False  # the seen flags do not decide: a transparent trained Gaussian is unseen
+        before = m.opacities().detach().clone()
+        n = fill_unseen_layer_opacity(state, trained, erosion=1)
+        assert n == int((~trained).sum())
+        after = m.opacities().detach()
+        assert torch.equal(after[:N], before[:N]) and torch.allclose(after[N:][trained], before[N:][trained])
+        full = torch.ones(m.num_gaussians, dtype=torch.bool)
+        full[N:] = trained
+        sources = torch.as_tensor(erode(full.numpy(), m.neighbours(), 1))[N:]
+        have = [r for r in range(R) if bool(((rows == r) & sources).any())]
+        assert R - 1 not in have and len(have) >= R // 2
+        for r in range(R):
+            src = min(have, key=lambda h: (abs(h - r), h))  # the last rows: the nearest one with any
+            want = before[N:][(rows == src) & sources].median()
+            got = after[N:][(rows == r) & ~trained]
+            assert torch.allclose(got, torch.full_like(got, float(want)), atol=1e-5), r
+        assert fill_unseen_layer_opacity(state, torch.ones(m.num_layer, dtype=torch.bool)) == 0
+        state.seen[N:] = True  # painted or counted seen: left alone
+        assert fill_unseen_layer_opacity(state, trained) == 0
+        with pytest.raises(ValueError, match="trained flags must have shape"):
+            fill_unseen_layer_opacity(state, trained[:-1])
+    finally:
+        state.seen.copy_(saved_seen)
+        with torch.no_grad():
+            m.layer_opacity.copy_(saved_op)
+
+
+def test_layer_faced_training_is_the_front_of_the_tube_for_a_front_camera(layered):
+    """Against an independent reference: the cosine between each posed layer normal and the
+    direction to the camera, in float64, over every training frame."""
+    from reconstruct.train.unseen_fill import layer_faced_training
+
+    t = layered
+    N = t.model.num_body
+    faced = layer_faced_training(t.state, t.data, min_cos=0.2)
+    want = torch.zeros_like(faced)
+    for i in t.data.frames:
+        posed = t.state.posed(i)
+        c = torch.as_tensor(t.data.targets[i].camera.center, dtype=torch.float64)
+        v = c - posed.means[N:].double()
+        cos = (v * posed.normals[N:].double()).sum(1) / v.norm(dim=1)
+        want |= cos >= 0.2
+    assert torch.equal(faced, want)
+    front = t.model.base_normals[N:, 1] < -0.5  # -Y is the front; the tiny scene's cameras look at it
+    back = t.model.base_normals[N:, 1] > 0.5
+    assert faced[front].float().mean() > 0.9 and faced[back].float().mean() < 0.1
+
+
+def test_layer_rings_follow_the_slice_hull_without_bulging_in_depth(body, layer):
+    """Each ring is the convex hull of the body slice pushed out by the row's standoff: it is
+    deepest straight in front (column 0) and straight behind (column C/2), and within the slice's
+    width. The support function used as a radius bulged: over a pair of legs (wide, shallow) its
+    points off the front column stood further forward than the front column itself."""
+    from reconstruct.avatar.garment_layer import _dense_body
+
+    pts, _ = _dense_body(body)
+    R, C = layer.grid_shape
+    P = layer.positions.numpy().reshape(R, C, 3)
+    for i in range(R):
+        assert P[i, :, 1].min() >= P[i, 0, 1] - 0.003, i  # front is -Y
+        assert P[i, :, 1].max() <= P[i, C // 2, 1] + 0.003, i
+        sl = pts[np.abs(pts[:, 2] - P[i, 0, 2]) < 0.012]
+        assert P[i, :, 0].max() - P[i, :, 0].min() >= sl[:, 0].max() - sl[:, 0].min() - 0.01, i
+
+
 def test_stage2_runs_on_an_avatar_with_a_layer(layered):
     from reconstruct.stage2.config import Stage2Config
     from reconstruct.stage2.plan import start_stage2

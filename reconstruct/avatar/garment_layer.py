@@ -7,9 +7,10 @@ This layer adds Gaussians where the silhouette says there is something:
 
 * geometry: a tube of Gaussians on a regular grid (rows down from the top ring, columns round),
   swept round the hips-and-legs region of the canonical body: at each height the ring follows the
-  support function of the body slice (torso above the hips; torso, thighs and shins below them;
-  ``h(theta) = max_p (p - c) . d(theta)``: the convex envelope, so one ring spans both legs) plus a
-  standoff growing from the top to the hem, never narrowing below the hips (cloth hangs);
+  convex hull of the body slice (torso above the hips; torso, thighs and shins below them; its
+  polar radius round the slice's centre, ``body.slices.hull_polar_radii``: the convex envelope, so
+  one ring spans both legs) plus a standoff growing from the top to the hem, never narrowing below
+  the hips (cloth hangs);
 * skinning: each Gaussian takes a Gaussian-weighted average of the weights of the nearest body
   points (relative to the nearest), then the weights are diffused over the grid (a Gaussian filter,
   wrapping round), so the cloth between the legs blends the two legs' bones and the layer moves as
@@ -41,6 +42,7 @@ from ..body.base import BodyModel
 from ..body.lbs import Skinning
 from ..body.parts import PART_INDEX, PART_NAMES
 from ..body.pose import BodyPose
+from ..body.slices import hull_polar_radii, ring_directions
 from .config import GARMENT_LAYER_MODES
 
 _COVERED = ("torso", "thigh.L", "thigh.R", "shin.L", "shin.R")
@@ -246,7 +248,7 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int = 64, ro
     rows = max(4, int(np.ceil((hint.top_z - hint.hem_z) / row_step)) + 1)
     zs = np.linspace(hint.top_z, hint.hem_z, rows)
     theta = np.arange(cols) * 2 * np.pi / cols
-    d = np.stack([np.sin(theta), -np.cos(theta)], 1)  # 0 = front (-Y), +pi/2 = the body's left (+X)
+    d = ring_directions(theta)  # 0 = front (-Y), +pi/2 = the body's left (+X)
     centres, radii = np.zeros((rows, 2)), np.zeros((rows, cols))
     for i, z in enumerate(zs):
         for width in (0.012, 0.025, 0.05):
@@ -256,8 +258,8 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int = 64, ro
         else:
             raise ValueError(f"garment layer: no body surface near height {z:.3f} m")
         sl = pts[on, :2]  # torso, thighs and shins only: the arms are not in _dense_body
-        centres[i] = sl.mean(0)
-        radii[i] = ((sl[None] - centres[i]) @ d.T).max(1)  # support function of the slice
+        centres[i] = sl.mean(0)  # inside the slice's convex hull
+        radii[i] = hull_polar_radii(sl, centres[i], theta)
     radii = gaussian_filter1d(radii, 1.0, axis=0, mode="nearest")
     t = np.clip((marks["hips"] - zs) / max(marks["hips"] - hint.hem_z, 1e-6), 0, 1) ** 1.3
     radii = radii + (hint.standoff_top + (hint.standoff_hem - hint.standoff_top) * t)[:, None]

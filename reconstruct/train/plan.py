@@ -13,7 +13,7 @@ from .config import Stage1Config, StageSettings
 from ..appearance.wrap_fill import grazing_rule_for
 from .seen_recount import keep_seen_on_person
 from .steps import GivenViewStep, TrainingStep
-from .unseen_fill import fill_unseen_colors
+from .unseen_fill import fill_unseen_colors, fill_unseen_layer_opacity, layer_faced_training
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
@@ -73,7 +73,8 @@ class Stage1Plan(StagePlan):
 
     def finish(self, context: StepContext) -> str | None:
         """The seen flags are recounted on the person (``seen_on_person``, train/seen_recount.py),
-        then the never-seen Gaussians take the wrap-around fill's colours (``fill_unseen``)."""
+        then the never-seen Gaussians take the wrap-around fill's colours and, on a garment layer, the
+        trained cloth's opacity at their height (``fill_unseen``)."""
         state, notes = context.state, []
         if self.settings.seen_on_person:
             k = keep_seen_on_person(state, context.data, hit_threshold=self.settings.hit_threshold)
@@ -84,4 +85,8 @@ class Stage1Plan(StagePlan):
                                    grazing_rule=grazing_rule_for(self.settings))
             if n:
                 notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
+            n = (fill_unseen_layer_opacity(state, layer_faced_training(state, context.data))
+                if state.model.layer is not None else 0)
+            if n:
+                notes.append(f"{n} garment-layer Gaussians no training camera faced took the trained cloth's opacity at their height")
         return "Stage I: " + "; ".join(notes) if notes else None

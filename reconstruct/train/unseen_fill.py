@@ -20,6 +20,16 @@ A garment layer's Gaussians are filled like the body's: they are one more part (
 seen ones colour the unseen ones round the tube at the same height (the fill's band), eroded and
 smoothed over the layer's own grid (``AvatarModel.neighbours``).
 
+A garment layer's opacity is learned (its Gaussians may be cloth or empty air), but only where
+training saw the layer: the back of a skirt kept its initial 0.5 and rendered half transparent
+from behind, the legs showing through. ``fill_unseen_layer_opacity`` gives every layer Gaussian
+that never faced a training camera (``layer_faced_training``; not the seen flags: a Gaussian the
+alpha loss made transparent, below the hem or in a coat's opening, is no first hit and so not
+"seen", yet its opacity is trained) the median opacity of the trained ones in its row of the
+layer's grid (the same height round the tube; the nearest row with any where a row has none):
+cloth seen at the front at a height is cloth at the back at that height, and rows the front made
+empty (past the hem) stay empty.
+
 Stage II starts from this avatar and recomputes its own pseudo-colours from the same trusted
 seen Gaussians, so the fill changes where Stage II starts, not where it is pulled to."""
 
@@ -34,6 +44,7 @@ from ..appearance.wrap_fill import wrap_fill_colors
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
+    from .data import TrainingData
 
 # target colours are kept this far inside (0, 1) so that their logits stay finite
 _COLOR_MARGIN = 1e-3
@@ -69,3 +80,64 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     residual.data[idx.to(residual.device)] = ((target - decoded_logit) / cfg.color_residual_gain).to(
         residual.device, residual.dtype)
     return int(len(idx))
+
+
+# layer opacities are set this far inside (0, 1) so that their logits stay finite
+_OPACITY_MARGIN = 1e-3
+
+
+@torch.no_grad()
+def layer_faced_training(state: AvatarState, data: TrainingData, *, min_cos: float = 0.2) -> torch.Tensor:
+    """(M,) bool: the garment-layer Gaussians that faced a training camera in some frame (the cosine
+    between the posed normal and the direction to the camera at least ``min_cos``): those whose
+    opacity training could have set, opaque cloth or empty air (a Gaussian the alpha loss made
+    transparent is no first hit, so the seen flags cannot tell it from one never trained)."""
+    model = state.model
+    N, M = model.num_body, model.num_layer
+    faced = torch.zeros(M, dtype=torch.bool)
+    if M == 0:
+        return faced
+    for i in data.frames:
+        posed = state.posed(i)
+        centre = torch.as_tensor(data.targets[i].camera.center, dtype=posed.means.dtype, device=posed.means.device)
+        to_cam = centre - posed.means[N:]
+        cos = (to_cam * posed.normals[N:]).sum(1) / to_cam.norm(dim=1).clamp_min(1e-9)
+        faced |= (cos >= min_cos).cpu()
+    return faced
+
+
+@torch.no_grad()
+def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, erosion: int = 2) -> int:
+    """Give every garment-layer Gaussian that is not ``trained`` ((M,) bool, ``layer_faced_training``)
+    and not painted seen the median opacity of the trained ones (eroded by ``erosion`` grid steps)
+    in its grid row, or in the nearest row that has any. Returns how many were set (0 without a
+    layer, or when none or all are trained)."""
+    model = state.model
+    if model.layer is None:
+        return 0
+    N = model.num_body
+    trained = torch.as_tensor(trained, dtype=torch.bool).cpu()
+    if trained.shape != (model.num_layer,):
+        raise ValueError(f"fill_unseen_layer_opacity: trained flags must have shape ({model.num_layer},), "
+                         f"found {tuple(trained.shape)}")
+    todo = ~trained & ~state.edits.paint(state.seen).cpu().bool()[N:]
+    full = torch.ones(model.num_gaussians, dtype=torch.bool)
+    full[N:] = trained
+    sources = torch.as_tensor(erode(full.numpy(), model.neighbours(), erosion))[N:]
+    if not bool(sources.any()):
+        sources = trained
+    if not bool(sources.any()) or not bool(todo.any()):
+        return 0
+    rows = model.layer_rc[:, 0].cpu()
+    opacity = model.opacities().detach().cpu()[N:]
+    R = model.layer.grid_shape[0]
+    have = [r for r in range(R) if bool(sources[rows == r].any())]
+    per_row = torch.empty(R, dtype=opacity.dtype)
+    for r in range(R):
+        near = min(have, key=lambda h: (abs(h - r), h))
+        per_row[r] = opacity[(rows == near) & sources].median()
+    target = per_row[rows].clamp(_OPACITY_MARGIN, 1 - _OPACITY_MARGIN)
+    param = model.layer_opacity
+    new = torch.logit(target) / model.config.garment_opacity_gain
+    param.data[todo.to(param.device)] = new[todo].to(param.device, param.dtype)
+    return int(todo.sum())

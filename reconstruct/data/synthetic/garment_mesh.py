@@ -25,10 +25,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
-from scipy.spatial import ConvexHull
 
 from ...body.base import BodyModel
 from ...body.parts import PART_INDEX
+from ...body.slices import hull_polar_radii
 
 LOOSE_GARMENTS = ("skirt", "coat", "dress", "wide_trousers")
 
@@ -111,25 +111,6 @@ def landmarks(body: BodyModel) -> dict[str, float]:
     }
 
 
-def _hull_radii(points: np.ndarray, centre: np.ndarray, thetas: np.ndarray) -> np.ndarray:
-    """Distance from ``centre`` to the boundary of the convex hull of 2-D ``points`` along the
-    directions (sin t, -cos t) for each t of ``thetas`` (0 = towards -Y, the front)."""
-    hull = points[ConvexHull(points).vertices]
-    P = hull - centre
-    E = np.roll(P, -1, axis=0) - P
-    d = np.stack([np.sin(thetas), -np.cos(thetas)], 1)
-    cross = lambda a, b: a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    denom = cross(d[:, None, :], E[None])  # (T,K)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = cross(P[None], E[None]) / denom  # ray parameter where it meets edge k's line
-        s = cross(P[None], d[:, None, :]) / denom  # edge parameter
-    ok = (r > 0) & (s >= -1e-9) & (s <= 1 + 1e-9) & np.isfinite(r)
-    r = np.where(ok, r, np.inf).min(1)
-    if not np.isfinite(r).all():
-        raise ValueError("garment: slice centre outside the body's hull (bad garment profile)")
-    return r
-
-
 def _dense_surface(body: BodyModel) -> tuple[np.ndarray, np.ndarray]:
     """Canonical points sampled densely on the body's triangles (vertices plus 9 barycentric
     points per face) and their parts (of the face's first vertex): the body's vertex rings on the
@@ -177,10 +158,10 @@ def _tube_grid(body: BodyModel, prof: GarmentProfile, side: str | None, marks: d
     for i, z in enumerate(zs):
         pts = _slice_points(verts, below if z <= marks["hips"] else torso, z, 0.012)
         try:
-            radii[i] = _hull_radii(pts, centres[i], fine)
+            radii[i] = hull_polar_radii(pts, centres[i], fine)
         except ValueError:  # the smoothed centre fell outside this slice's hull: use the slice's own
             centres[i] = pts.mean(0)
-            radii[i] = _hull_radii(pts, centres[i], fine)
+            radii[i] = hull_polar_radii(pts, centres[i], fine)
     radii = gaussian_filter1d(gaussian_filter1d(radii, 1.5, axis=0, mode="nearest"), 2.0, axis=1, mode="wrap")
     # standoff: small at the top, growing to the flare at the hem (from the hips down)
     flare_from = marks["hips"] if not prof.two_legs else marks["hips"] - 0.1
