@@ -2,8 +2,9 @@
 per sampled frame, ``hint_from_evidence`` for the scene: ``volume_hint_from_masks`` in two parts): one row per scene with each sampled frame's
 evidence -- ``C0.28`` cloth reaching 0.28 m below the fitted body's crotch, ``t0.06`` testable
 (the body leaves a gap between its legs) but no cloth (a covered run only 0.06 m long), ``-``
-nothing to test -- and the hint (hem height, flare) or none. This is what ``avatar.garment_layer
-=auto`` decides on.
+nothing to test; then after ``/`` the legs (``frame_leg_evidence``): ``W5.6`` wide trouser legs
+standing out 5.6 cm at the hem, ``l`` testable but not wide, ``-`` nothing to test -- and the hint
+(hem height, flare, one tube or two) or none. This is what ``avatar.garment_layer=auto`` decides on.
 
     OMP_NUM_THREADS=1 python benchmarks/garment_hint.py "synthetic:seed=0,clothing=skirt" \\
         "synthetic:seed=0" path/to/prepared_scene ...
@@ -25,9 +26,12 @@ def evidence_row(spec: str) -> str:
     scene = load_scene(spec, progress=False)
     body = scene.body_model()
     evidence = scene_hint_evidence(body, scene.frames)
-    marks = [f"C{e.drop:.2f}" if e.cloth else f"t{e.drop:.2f}" if e.testable else "-" for e in evidence]
+    gap = lambda e: f"C{e.drop:.2f}" if e.cloth else f"t{e.drop:.2f}" if e.testable else "-"  # noqa: E731
+    legs = lambda g: "-" if g is None or not g.testable else f"W{100 * g.flare:.1f}" if g.wide else "l"  # noqa: E731
+    marks = [f"{gap(e)}/{legs(e.legs)}" for e in evidence]
     hint = hint_from_evidence(body, evidence)
-    said = "none" if hint is None else (f"hem {hint.hem_z:+.3f} m, flare {100 * hint.standoff_hem:.1f} cm, "
+    said = "none" if hint is None else (f"{'two legs, ' if hint.two_legs else ''}hem {hint.hem_z:+.3f} m, "
+                                        f"flare {100 * hint.standoff_hem:.1f} cm, "
                                         f"{build_garment_layer(body, hint).num_gaussians:,} Gaussians")
     return f"| {spec} | {len(scene.frames)} | {' '.join(marks)} | {said} |"
 

@@ -30,7 +30,7 @@ def body(scenes):
 def test_hint_from_masks_finds_the_skirt_and_not_tight_clothes(scenes, body):
     assert volume_hint_from_masks(body, scenes["garment"].frames) is None
     hint = volume_hint_from_masks(body, scenes["skirt"].frames)
-    assert hint is not None
+    assert hint is not None and not hint.two_legs  # one tube round both legs
     true_hem = scenes["skirt"].meta["loose_garment"]["hem_m"]
     assert abs(hint.hem_z - true_hem) < 0.1, (hint.hem_z, true_hem)
     assert 0.02 <= hint.standoff_hem <= 0.15

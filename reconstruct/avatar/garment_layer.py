@@ -18,8 +18,11 @@ This layer adds Gaussians where the silhouette says there is something:
 * the volume hint: ``volume_hint_from_masks`` reads the hem height and the flare from the
   front-view frames: image rows where the posed body's own silhouette leaves a gap between the
   projected leg axes and the mask covers that gap are cloth; the lowest such row is the hem; the
-  mask's width beyond the body's there is the flare (the top is the waist). Tight clothing gives
-  no hint (None): no layer.
+  mask's width beyond the body's there is the flare (the top is the waist). Without cloth in the
+  gap, each lower leg's mask run is compared with the body's own (``frame_leg_evidence``): legs
+  that stand out by 2.5 cm or more over 10 cm of height are wide trousers, and the layer is two
+  tubes, one round each leg (``VolumeHint.two_legs``; the grid's columns hold both, each wrapping
+  round on itself). Tight clothing gives no hint (None): no layer.
 
 ``AvatarModel(..., layer=...)`` appends the layer's Gaussians after the body's (its own feature map
 over the grid, the shared decoder, a learned opacity); ``garment_layer_for`` builds the layer a
@@ -31,7 +34,7 @@ poses the bare layer (given colours, one opacity) for the measurements of
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -54,6 +57,16 @@ AVATAR_PART_NAMES: tuple[str, ...] = (*PART_NAMES, GARMENT_PART_NAME)
 _HINT_FIELDS = ("top_z", "hem_z", "standoff_top", "standoff_hem")
 
 
+def _roll_columns(a, shift: int, tubes: int):
+    """``a`` (R, T*C, ...) rolled by ``shift`` along the columns of each of its ``tubes`` blocks of
+    C columns (each tube wraps round on itself); numpy arrays or torch tensors."""
+    R, TC = a.shape[:2]
+    b = a.reshape(R, tubes, TC // tubes, *a.shape[2:])
+    if isinstance(a, torch.Tensor):
+        return b.roll(shift, dims=2).reshape(a.shape)
+    return np.roll(b, shift, axis=2).reshape(a.shape)
+
+
 @dataclass(frozen=True)
 class VolumeHint:
     """Where the garment layer goes, in the body's canonical heights (metres)."""
@@ -62,6 +75,7 @@ class VolumeHint:
     hem_z: float
     standoff_top: float = 0.012
     standoff_hem: float = 0.06
+    two_legs: bool = False  # one tube round each leg (trousers) instead of one round both
 
     def __post_init__(self) -> None:
         if not self.hem_z < self.top_z:
@@ -72,7 +86,9 @@ class VolumeHint:
 
 @dataclass
 class GarmentLayer:
-    """Canonical Gaussians of the layer on a (rows, cols) grid (row-major; columns wrap round)."""
+    """Canonical Gaussians of the layer on a (rows, cols) grid (row-major). The columns are
+    ``tubes`` blocks side by side (one tube round both legs; two, left then right, for trousers),
+    each wrapping round on itself."""
 
     positions: torch.Tensor  # (N,3) float32 canonical centres
     normals: torch.Tensor  # (N,3) outward
@@ -86,23 +102,29 @@ class GarmentLayer:
     def num_gaussians(self) -> int:
         return int(self.positions.shape[0])
 
+    @property
+    def tubes(self) -> int:
+        """How many tubes the columns hold (2 for trousers: left leg, then right)."""
+        return 2 if self.hint.two_legs else 1
+
     def edges(self) -> np.ndarray:
-        """(E,2) grid neighbours: down each column and round each ring (wrapping)."""
+        """(E,2) grid neighbours: down each column and round each tube's ring (wrapping)."""
         R, C = self.grid_shape
         idx = np.arange(R * C).reshape(R, C)
         down = np.stack([idx[:-1].ravel(), idx[1:].ravel()], 1)
-        side = np.stack([idx.ravel(), np.roll(idx, -1, axis=1).ravel()], 1)
+        side = np.stack([idx.ravel(), _roll_columns(idx, -1, self.tubes).ravel()], 1)
         return np.concatenate([down, side])
 
     def grid_neighbours(self) -> np.ndarray:
         """(N,4) each Gaussian's grid neighbours in the order of ``texel_neighbours`` (next column,
-        next row, previous column, previous row): columns wrap round, -1 past the top and the hem."""
+        next row, previous column, previous row): columns wrap round their tube, -1 past the top and
+        the hem."""
         R, C = self.grid_shape
         idx = np.arange(R * C).reshape(R, C)
         out = np.full((R, C, 4), -1, np.int64)
-        out[..., 0] = np.roll(idx, -1, axis=1)
+        out[..., 0] = _roll_columns(idx, -1, self.tubes)
         out[:-1, :, 1] = idx[1:]
-        out[..., 2] = np.roll(idx, 1, axis=1)
+        out[..., 2] = _roll_columns(idx, 1, self.tubes)
         out[1:, :, 3] = idx[:-1]
         return out.reshape(R * C, 4)
 
@@ -112,7 +134,7 @@ class GarmentLayer:
         a disc's in-plane scale, like ``texel_frames``' steps of the body's texels."""
         R, C = self.grid_shape
         P = self.positions.double().reshape(R, C, 3)
-        side = (P.roll(-1, dims=1) - P.roll(1, dims=1)).norm(dim=-1) / 2
+        side = (_roll_columns(P, -1, self.tubes) - _roll_columns(P, 1, self.tubes)).norm(dim=-1) / 2
         down = torch.as_tensor(np.gradient(P.numpy(), axis=0)).norm(dim=-1)
         return torch.stack([side, down], -1).reshape(R * C, 2).float()
 
@@ -129,7 +151,8 @@ class GarmentLayer:
                 "tangents": self.tangents.detach().cpu().clone(), "weights": self.weights.detach().cpu().clone(),
                 "spacing": self.spacing.detach().cpu().clone(),
                 "grid_shape": [int(self.grid_shape[0]), int(self.grid_shape[1])],
-                "hint": {k: float(getattr(self.hint, k)) for k in _HINT_FIELDS}}
+                "hint": {**{k: float(getattr(self.hint, k)) for k in _HINT_FIELDS},
+                         "two_legs": bool(self.hint.two_legs)}}
 
     @staticmethod
     def from_state(d, source: str = "checkpoint", num_joints: int | None = None) -> "GarmentLayer":
@@ -144,6 +167,14 @@ class GarmentLayer:
         if (not isinstance(shape, (list, tuple)) or len(shape) != 2
                 or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in shape)):
             raise ValueError(f"{what}: grid_shape must be two positive integers, found {shape!r}")
+        hint = d["hint"]
+        if not isinstance(hint, dict) or not all(isinstance(hint.get(k), (int, float)) for k in _HINT_FIELDS):
+            raise ValueError(f"{what}: hint must hold the numbers {', '.join(_HINT_FIELDS)}, found {hint!r}")
+        two_legs = hint.get("two_legs", False)  # absent in checkpoints from before trousers: one tube
+        if not isinstance(two_legs, bool):
+            raise ValueError(f"{what}: hint two_legs must be true or false, found {two_legs!r}")
+        if two_legs and int(shape[1]) % 2:
+            raise ValueError(f"{what}: a two-legged layer needs an even number of columns, found {shape[1]}")
         n = int(shape[0]) * int(shape[1])
         want = {"positions": (n, 3), "normals": (n, 3), "tangents": (n, 3), "spacing": (n,)}
         out = {}
@@ -159,11 +190,8 @@ class GarmentLayer:
             found = tuple(w.shape) if isinstance(w, torch.Tensor) else type(w).__name__
             raise ValueError(f"{what}: weights must be a float tensor of shape ({n}, "
                              f"{num_joints if num_joints is not None else 'joints'}), found {found}")
-        hint = d["hint"]
-        if not isinstance(hint, dict) or not all(isinstance(hint.get(k), (int, float)) for k in _HINT_FIELDS):
-            raise ValueError(f"{what}: hint must hold the numbers {', '.join(_HINT_FIELDS)}, found {hint!r}")
         try:
-            volume = VolumeHint(**{k: float(hint[k]) for k in _HINT_FIELDS})
+            volume = VolumeHint(**{k: float(hint[k]) for k in _HINT_FIELDS}, two_legs=two_legs)
         except ValueError as exc:
             raise ValueError(f"{what}: {exc}") from None
         return GarmentLayer(out["positions"], out["normals"], out["tangents"], w.float(), out["spacing"],
@@ -172,7 +200,8 @@ class GarmentLayer:
     def describe(self) -> str:
         R, C = self.grid_shape
         h = self.hint
-        return (f"garment layer: {self.num_gaussians:,} Gaussians ({R} rows x {C} columns), top {h.top_z:.3f} m, "
+        tubes = " in two tubes (one per leg)" if self.tubes == 2 else ""
+        return (f"garment layer: {self.num_gaussians:,} Gaussians ({R} rows x {C} columns{tubes}), top {h.top_z:.3f} m, "
                 f"hem {h.hem_z:.3f} m, flare {100 * h.standoff_hem:.1f} cm")
 
     def skinning(self, body: BodyModel) -> Skinning:
@@ -237,19 +266,14 @@ def landmark_heights(body: BodyModel) -> dict[str, float]:
             "knee": 0.5 * (z("lowerleg01.L") + z("lowerleg01.R")), "ankle": 0.5 * (z("foot.L") + z("foot.R"))}
 
 
-def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int = 64, row_step: float = 0.02,
-                        k: int = 24, sigma: float = 0.04, diffusion: tuple[float, float] = (3.0, 6.0)) -> GarmentLayer:
-    """The garment layer of ``body`` in the region of ``hint`` (see the module docstring).
-    ``diffusion``: the weight filter's sigma in grid rows and columns."""
-    if cols < 8:
-        raise ValueError(f"garment layer: need at least 8 columns, found {cols}")
-    pts, wts = _dense_body(body)
-    marks = landmark_heights(body)
-    rows = max(4, int(np.ceil((hint.top_z - hint.hem_z) / row_step)) + 1)
-    zs = np.linspace(hint.top_z, hint.hem_z, rows)
-    theta = np.arange(cols) * 2 * np.pi / cols
-    d = ring_directions(theta)  # 0 = front (-Y), +pi/2 = the body's left (+X)
-    centres, radii = np.zeros((rows, 2)), np.zeros((rows, cols))
+_LEG_OVERLAP = 0.03  # metres past the midline that each leg's tube takes in at the seat
+MIN_LEG_FLARE = 0.025  # metres the mask must stand out round each lower leg for wide trousers
+
+
+def _tube_rings(pts: np.ndarray, zs: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Slice centres (R,2) and hull polar radii (R,C) of ``pts`` at heights ``zs`` (a slab of 1.2 cm,
+    widened to 2.5 and 5 cm where it holds fewer than 16 points)."""
+    centres, radii = np.zeros((len(zs), 2)), np.zeros((len(zs), len(theta)))
     for i, z in enumerate(zs):
         for width in (0.012, 0.025, 0.05):
             on = np.abs(pts[:, 2] - z) < width
@@ -260,33 +284,58 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int = 64, ro
         sl = pts[on, :2]  # torso, thighs and shins only: the arms are not in _dense_body
         centres[i] = sl.mean(0)  # inside the slice's convex hull
         radii[i] = hull_polar_radii(sl, centres[i], theta)
-    radii = gaussian_filter1d(radii, 1.0, axis=0, mode="nearest")
+    return centres, radii
+
+
+def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int = 64, row_step: float = 0.02,
+                        k: int = 24, sigma: float = 0.04, diffusion: tuple[float, float] = (3.0, 6.0)) -> GarmentLayer:
+    """The garment layer of ``body`` in the region of ``hint`` (see the module docstring): one tube of
+    ``cols`` columns, or with ``hint.two_legs`` one per leg (left then right, ``cols // 2`` each; each
+    takes the torso and legs on its side of the midline, overlapping by 3 cm at the seat, and does
+    not hang: it follows its leg). ``diffusion``: the weight filter's sigma in grid rows and columns."""
+    tubes = 2 if hint.two_legs else 1
+    if cols < 8 * tubes:
+        raise ValueError(f"garment layer: need at least {8 * tubes} columns, found {cols}")
+    cols //= tubes
+    pts, wts = _dense_body(body)
+    marks = landmark_heights(body)
+    rows = max(4, int(np.ceil((hint.top_z - hint.hem_z) / row_step)) + 1)
+    zs = np.linspace(hint.top_z, hint.hem_z, rows)
+    theta = np.arange(cols) * 2 * np.pi / cols
+    d = ring_directions(theta)  # 0 = front (-Y), +pi/2 = the body's left (+X)
     t = np.clip((marks["hips"] - zs) / max(marks["hips"] - hint.hem_z, 1e-6), 0, 1) ** 1.3
-    radii = radii + (hint.standoff_top + (hint.standoff_hem - hint.standoff_top) * t)[:, None]
+    standoff = hint.standoff_top + (hint.standoff_hem - hint.standoff_top) * t
     start = int(np.argmin(np.abs(zs - marks["hips"])))
-    radii[start:] = np.maximum.accumulate(radii[start:], axis=0)  # cloth hangs: no narrowing
-    xy = centres[:, None, :] + radii[..., None] * d[None]
-    P = np.concatenate([xy, np.broadcast_to(zs[:, None, None], (rows, cols, 1))], -1)
-    # normals and tangents from the grid
-    tang = np.roll(P, -1, axis=1) - np.roll(P, 1, axis=1)
+    grids = []
+    for sign in ((1.0, -1.0) if hint.two_legs else (None,)):  # +X is the body's left
+        side = slice(None) if sign is None else pts[:, 0] * sign > -_LEG_OVERLAP
+        centres, radii = _tube_rings(pts[side], zs, theta)
+        radii = gaussian_filter1d(radii, 1.0, axis=0, mode="nearest") + standoff[:, None]
+        if not hint.two_legs:
+            radii[start:] = np.maximum.accumulate(radii[start:], axis=0)  # cloth hangs: no narrowing
+        xy = centres[:, None, :] + radii[..., None] * d[None]
+        grids.append(np.concatenate([xy, np.broadcast_to(zs[:, None, None], (rows, cols, 1))], -1))
+    P = np.concatenate(grids, axis=1)  # (rows, tubes*cols, 3)
+    # normals and tangents from the grid (round each tube)
+    tang = _roll_columns(P, -1, tubes) - _roll_columns(P, 1, tubes)
     down = np.gradient(P, axis=0)
     nrm = np.cross(down, tang)
     nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
     tang /= np.linalg.norm(tang, axis=-1, keepdims=True)
     # spacing: mean distance to the ring and column neighbours
-    side = np.linalg.norm(np.roll(P, -1, axis=1) - P, axis=-1)
-    vert = np.linalg.norm(down, axis=-1)
-    spacing = 0.5 * (side + vert)
-    # weights: transfer from the nearest body points, diffused over the grid
+    side_len = np.linalg.norm(_roll_columns(P, -1, tubes) - P, axis=-1)
+    spacing = 0.5 * (side_len + np.linalg.norm(down, axis=-1))
+    # weights: transfer from the nearest body points, diffused over each tube's grid
     dist, idx = cKDTree(pts).query(P.reshape(-1, 3), k=k)
     g = np.exp(-(dist ** 2 - dist[:, :1] ** 2) / (2 * sigma ** 2))
     g /= g.sum(1, keepdims=True)
-    W = np.einsum("nk,nkj->nj", g, wts[idx]).reshape(rows, cols, -1)
-    W = gaussian_filter(W, (diffusion[0], diffusion[1], 0), mode=("nearest", "wrap", "nearest"))
-    W = np.clip(W, 0, None)
+    W = np.einsum("nk,nkj->nj", g, wts[idx]).reshape(rows, tubes, cols, -1)
+    W = gaussian_filter(W, (diffusion[0], 0, diffusion[1], 0), mode=("nearest", "nearest", "wrap", "nearest"))
+    W = np.clip(W, 0, None).reshape(rows, tubes * cols, -1)
     W /= W.sum(-1, keepdims=True)
-    f32 = lambda a: torch.as_tensor(np.ascontiguousarray(a.reshape(rows * cols, *a.shape[2:])), dtype=torch.float32)
-    return GarmentLayer(f32(P), f32(nrm), f32(tang), f32(W), f32(spacing), (rows, cols), hint)
+    n = rows * tubes * cols
+    f32 = lambda a: torch.as_tensor(np.ascontiguousarray(a.reshape(n, *a.shape[2:])), dtype=torch.float32)
+    return GarmentLayer(f32(P), f32(nrm), f32(tang), f32(W), f32(spacing), (rows, tubes * cols), hint)
 
 
 def _leg_axis_x(J2: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -329,6 +378,25 @@ class HintEvidence:
     flare: float | None = None
     drop: float = 0.0  # metres from the first tested row (the crotch) down to the run's lowest row
     rows: tuple[int, int] | None = None  # image rows: the first tested one, the run's lowest
+    legs: "LegEvidence | None" = None  # what the same frame says about wide trouser legs
+
+
+@dataclass(frozen=True)
+class LegEvidence:
+    """What one front-view frame says about wide trouser legs (``frame_leg_evidence``).
+
+    ``testable``: enough image rows from the knees down in which each leg stands apart from the
+    other in both the mask and the body's own silhouette; ``wide``: over a run of such rows reaching
+    down from the knees the mask is wider than the body's leg by at least ``min_flare`` on each side
+    (on average over the two legs; the longest such run); ``hem_z``: the canonical height of the run's lowest row;
+    ``flare``: metres the mask stands out on each side near that row; ``span``: metres of height
+    the wide run covers."""
+
+    testable: bool
+    wide: bool
+    hem_z: float | None = None
+    flare: float | None = None
+    span: float = 0.0
 
 
 def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_gap: float = 0.015,
@@ -389,28 +457,106 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
     return HintEvidence(True, True, hem_z, flare, drop, (tested[0], hem_row))
 
 
+def _run_around(row: np.ndarray, x: int) -> tuple[int, int] | None:
+    """The run of True pixels of ``row`` that contains column ``x`` (first, last), or None."""
+    if not 0 <= x < len(row) or not row[x]:
+        return None
+    off = np.flatnonzero(~row)
+    left, right = off[off < x], off[off > x]
+    return (int(left.max()) + 1 if len(left) else 0, int(right.min()) - 1 if len(right) else len(row) - 1)
+
+
+def frame_leg_evidence(body: BodyModel, frame, *, min_flare: float = MIN_LEG_FLARE, min_span: float = 0.10,
+                       max_break: float = 0.03, min_rows: float = 0.5) -> LegEvidence:
+    """One frame's evidence about wide trouser legs (``LegEvidence``). Image rows run from the lower
+    projected knee down to the higher ankle; in each, for each leg, the run of mask pixels that holds
+    the projected leg axis is compared with the run of the posed body's own silhouette that holds it
+    (a row counts only where the two legs' runs are apart, in the mask and in the body: legs
+    together, or a skirt, say nothing about each leg). The row's flare is half the difference of the
+    widths in metres at the legs' depth, averaged over the two legs. Testable: at least ``min_rows``
+    of the rows count. Wide: the flare reaches ``min_flare`` in a run of counted rows (breaks of at
+    most ``max_break``; the longest run) that spans ``min_span``: the mask stands out round the lower
+    legs over a length, which a body fitted a little thin (a pixel or two) does not do. The hem is
+    the run's lowest row, the flare the 90th percentile of the rows' flares in the 5 cm above it."""
+    L = body.bone_labels
+    names = {s: [f"upperleg01.{s}", f"lowerleg01.{s}", f"foot.{s}"] for s in "LR"}
+    marks = landmark_heights(body)
+    cz = np.array([marks["hips"] - 0.06, marks["knee"], marks["ankle"]])
+    mask = np.asarray(frame.mask) > 0.5
+    J = body.posed_joints(frame.pose).numpy()
+    uv = {s: frame.camera.project(J[[L.index(n) for n in names[s]]])[0] for s in "LR"}
+    depth = float(frame.camera.project(J[[L.index("lowerleg01.L")]])[1][0])
+    metres_per_px = depth / float(frame.camera.fx)
+    top = int(np.ceil(max(uv["L"][1, 1], uv["R"][1, 1])))
+    bottom = int(np.floor(min(uv["L"][2, 1], uv["R"][2, 1])))
+    rows = np.arange(max(top, 0), min(bottom, mask.shape[0]))
+    if len(rows) * metres_per_px < min_span:
+        return LegEvidence(False, False)
+    sil = _body_silhouette(body, frame.pose, frame.camera, mask.shape, grow=0)  # widths: not grown
+    axis = {s: _leg_axis_x(uv[s], rows) for s in "LR"}
+    counted, flares = [], []
+    for i, r in enumerate(rows):
+        per_leg = []
+        for s, o in (("L", "R"), ("R", "L")):
+            x, other = int(round(axis[s][i])), axis[o][i]
+            m, b = _run_around(mask[r], x), _run_around(sil[r], x)
+            if m is None or b is None or m[0] <= other <= m[1] or b[0] <= other <= b[1]:
+                break
+            per_leg.append(((m[1] - m[0]) - (b[1] - b[0])) / 2 * metres_per_px)
+        if len(per_leg) == 2:
+            counted.append(r)
+            flares.append(float(np.mean(per_leg)))
+    if len(counted) < min_rows * len(rows):
+        return LegEvidence(False, False)
+    wide_rows = [r for r, f in zip(counted, flares) if f >= min_flare]
+    runs: list[list[int]] = []
+    for r in wide_rows:  # runs of wide rows, with breaks of at most max_break
+        if runs and (r - runs[-1][-1]) * metres_per_px <= max_break:
+            runs[-1].append(r)
+        else:
+            runs.append([r])
+    run = max(runs, key=lambda rr: rr[-1] - rr[0], default=None)
+    span = 0.0 if run is None else (run[-1] - run[0]) * metres_per_px
+    if run is None or span < min_span:
+        return LegEvidence(True, False, span=span)
+    hem_row = run[-1]
+    near = [f for r, f in zip(counted, flares) if 0 <= (hem_row - r) * metres_per_px <= 0.05]
+    hem_z = float(np.interp(hem_row, uv["L"][:, 1], cz))
+    return LegEvidence(True, True, hem_z, float(np.percentile(near, 90)), span)
+
+
 def scene_hint_evidence(body: BodyModel, frames, *, max_frames: int = 8, **thresholds) -> list[HintEvidence]:
-    """``frame_hint_evidence`` (with its ``thresholds``) for up to ``max_frames`` frames spread
-    evenly over the sequence."""
+    """``frame_hint_evidence`` (with its ``thresholds``), with ``frame_leg_evidence`` as its
+    ``legs``, for up to ``max_frames`` frames spread evenly over the sequence."""
     picks = np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)
-    return [frame_hint_evidence(body, frames[i], **thresholds) for i in sorted(set(picks.tolist()))]
+    return [replace(frame_hint_evidence(body, frames[i], **thresholds), legs=frame_leg_evidence(body, frames[i]))
+            for i in sorted(set(picks.tolist()))]
 
 
 def hint_from_evidence(body: BodyModel, evidence: list[HintEvidence], *, min_share: float = 0.5) -> VolumeHint | None:
-    """A VolumeHint from the frames' evidence, or None for tight clothing: loose clothing is when at
-    least ``min_share`` of the testable frames show cloth (a walk's frames with the legs together
-    test nothing; one frame where trousers look like cloth does not make a skirt). The hem is the
-    median over the cloth frames (canonical height along the legs), the flare the median of their
-    flares (clipped to 2-15 cm); the top is the waist."""
+    """A VolumeHint from the frames' evidence, or None for tight clothing. Cloth round both legs (a
+    skirt, a dress, a coat) when at least ``min_share`` of the testable frames show cloth in the gap
+    between the legs (a walk's frames with the legs together test nothing; one frame where trousers
+    look like cloth does not make a skirt): the hem is the median over the cloth frames (canonical
+    height along the legs), the flare the median of their flares (clipped to 2-15 cm), the top the
+    waist. Otherwise wide trouser legs (``two_legs``) when at least ``min_share`` of the frames
+    whose legs are testable show them wide (``LegEvidence``): hem and flare the medians the same
+    way, the top the waist."""
+    marks = landmark_heights(body)
     testable = [e for e in evidence if e.testable]
     cloth = [e for e in testable if e.cloth]
-    if not cloth or len(cloth) < min_share * len(testable):
+    if cloth and len(cloth) >= min_share * len(testable):
+        hem = float(np.median([e.hem_z for e in cloth]))
+        flares = [e.flare for e in cloth if e.flare is not None]
+        flare = float(np.clip(np.median(flares) if flares else 0.05, 0.02, 0.15))
+        return VolumeHint(top_z=marks["waist"], hem_z=min(hem, marks["hips"] - 0.1), standoff_hem=flare)
+    legs = [e.legs for e in evidence if e.legs is not None and e.legs.testable]
+    wide = [e for e in legs if e.wide]
+    if not wide or len(wide) < min_share * len(legs):
         return None
-    marks = landmark_heights(body)
-    hem = float(np.median([e.hem_z for e in cloth]))
-    flares = [e.flare for e in cloth if e.flare is not None]
-    flare = float(np.clip(np.median(flares) if flares else 0.05, 0.02, 0.15))
-    return VolumeHint(top_z=marks["waist"], hem_z=min(hem, marks["hips"] - 0.1), standoff_hem=flare)
+    hem = float(np.clip(np.median([e.hem_z for e in wide]), marks["ankle"] + 0.02, marks["hips"] - 0.1))
+    flare = float(np.clip(np.median([e.flare for e in wide]), 0.02, 0.15))
+    return VolumeHint(top_z=marks["waist"], hem_z=hem, standoff_hem=flare, two_legs=True)
 
 
 def volume_hint_from_masks(body: BodyModel, frames, *, max_frames: int = 8, min_share: float = 0.5,
@@ -460,7 +606,8 @@ def garment_layer_for(body: BodyModel, frames, mode: str, what: str = "scene") -
         if mode == "on":
             raise ValueError(f"avatar.garment_layer=on: {what}: the masks of its {len(frames)} training frames show "
                              f"no loose clothing (in fewer than half of the frames that can show it does the mask "
-                             f"cover the gap the body leaves between the legs), so there is nowhere to put a garment layer; use avatar.garment_layer=auto to "
-                             f"train without one in that case")
+                             f"cover the gap the body leaves between the legs, or stand out round each lower leg "
+                             f"by {100 * MIN_LEG_FLARE:.1f} cm or more), so there is nowhere to put a garment layer; use "
+                             f"avatar.garment_layer=auto to train without one in that case")
         return None
     return build_garment_layer(body, hint)
