@@ -117,3 +117,22 @@ def test_hint_needs_cloth_in_half_the_testable_frames(scenes, body):
     assert volume_hint_from_masks(body, one_in_four) is None
     three_in_four = [*skirt[:3], tight[3]]
     assert volume_hint_from_masks(body, three_in_four) is not None
+
+
+def test_hint_flare_is_the_skirts_and_a_hand_beside_it_is_not_cloth(scenes, body):
+    """The flare is how far the cloth stands out past the body just above the hem (the benchmark's
+    skirt: 7.5 cm); a hand hanging beside the skirt, apart from it, does not widen it."""
+    from reconstruct.avatar.garment_layer import frame_hint_evidence
+    from reconstruct.data.synthetic.garment_mesh import PROFILES
+
+    hint = volume_hint_from_masks(body, scenes["skirt"].frames)
+    assert abs(hint.standoff_hem - PROFILES["skirt"].standoff_hem) < 0.015, hint.standoff_hem
+    f = scenes["skirt"].frames[0]
+    e = frame_hint_evidence(body, f)
+    m = np.asarray(f.mask) > 0.5
+    hem = e.rows[1]
+    right = np.flatnonzero(m[hem - 2]).max()
+    hand = m.copy()
+    hand[hem - 6:hem + 1, right + 3:right + 7] = True  # apart from the cloth by two background pixels
+    e2 = frame_hint_evidence(body, _with_mask(f, hand))
+    assert e2.cloth and e2.flare == e.flare, (e.flare, e2.flare)

@@ -369,8 +369,8 @@ class HintEvidence:
     ``testable``: the posed body leaves a gap between its legs wide enough to test (at least
     ``min_gap`` metres over ``min_span`` metres of height); ``cloth``: the mask covers that gap in
     one run that starts at the crotch and reaches at least ``min_drop`` metres down the legs;
-    ``hem_z``: the canonical height of the run's lowest row; ``flare``: metres the mask is wider
-    than the body there (half the difference)."""
+    ``hem_z``: the canonical height of the run's lowest row; ``flare``: metres the cloth stands out
+    past the body at each side just above the hem (see ``frame_hint_evidence``)."""
 
     testable: bool
     cloth: bool
@@ -401,7 +401,7 @@ class LegEvidence:
 
 def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_gap: float = 0.015,
                         min_span: float = 0.05, min_drop: float = 0.10, max_break: float = 0.03,
-                        max_start: float = 0.08) -> HintEvidence:
+                        max_start: float = 0.08, flare_window: float = 0.06) -> HintEvidence:
     """One frame's evidence (``HintEvidence``). Image rows run from the projected hip joints down to
     the ankles; in each, the pixels between the two leg axes that the posed body's own silhouette
     leaves as background are the gap; a row is tested when its gap is at least ``min_gap`` wide (in
@@ -410,8 +410,11 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
     rows that begins within ``max_start`` metres of the first tested row (cloth hangs from the hips:
     a skirt covers the crotch), with breaks of at most ``max_break``, and reaches ``min_drop``
     metres below the first tested row (the fitted body's crotch): trousers whose fitted crotch sits
-    a little high, or feet touching
-    at the ankles, are not cloth."""
+    a little high, or feet touching at the ankles, are not cloth. The flare: over the covered rows
+    within ``flare_window`` metres above the hem, half the width of the mask's run round the legs'
+    midpoint (a hand apart from the cloth is not in it) less the body's extent inside that run; the
+    90th percentile of those rows (the hem's lowest row is the front of the hem's ellipse in the
+    image, narrower than the cloth above it)."""
     L = body.bone_labels
     names = {s: [f"upperleg01.{s}", f"lowerleg01.{s}", f"foot.{s}"] for s in "LR"}
     marks = landmark_heights(body)
@@ -426,7 +429,10 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
     rows = np.arange(max(top, 0), min(bottom, mask.shape[0]))
     if len(rows) < 4:
         return HintEvidence(False, False)
-    sil = _body_silhouette(body, frame.pose, frame.camera, mask.shape)
+    from scipy.ndimage import binary_dilation
+
+    body_only = _body_silhouette(body, frame.pose, frame.camera, mask.shape, grow=0)  # for widths
+    sil = binary_dilation(body_only)  # for the gap: grown by a pixel, a body fitted a little thin
     xl, xr = _leg_axis_x(uv["L"], rows), _leg_axis_x(uv["R"], rows)
     tested, covered = [], []
     for r, a, b in zip(rows, np.minimum(xl, xr), np.maximum(xl, xr)):
@@ -450,10 +456,14 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
     if drop < min_drop:
         return HintEvidence(True, False, drop=drop, rows=(tested[0], hem_row))
     hem_z = float(np.interp(hem_row, uv["L"][:, 1], cz))  # along hip -> knee -> ankle
-    on, body_on = np.flatnonzero(mask[hem_row]), np.flatnonzero(sil[hem_row])
-    flare = None
-    if len(on) and len(body_on):
-        flare = max(0.0, ((on.max() - on.min()) - (body_on.max() - body_on.min())) / 2) * metres_per_px
+    widths = []  # the cloth's width beyond the body's over the window above the hem
+    for r in [c for c in covered if 0 <= hem_row - c <= flare_window / metres_per_px and c <= hem_row]:
+        centre = int(round(0.5 * (np.interp(r, rows, xl) + np.interp(r, rows, xr))))
+        run = _run_around(mask[r], centre)  # the cloth's run (hands apart from it are not cloth)
+        inside = np.flatnonzero(body_only[r, run[0]:run[1] + 1]) if run is not None else []
+        if len(inside):
+            widths.append(max(0.0, ((run[1] - run[0]) - (inside.max() - inside.min())) / 2) * metres_per_px)
+    flare = float(np.percentile(widths, 90)) if widths else None
     return HintEvidence(True, True, hem_z, flare, drop, (tested[0], hem_row))
 
 
