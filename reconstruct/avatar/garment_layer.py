@@ -362,6 +362,12 @@ def _body_silhouette(body: BodyModel, pose: BodyPose, camera, shape: tuple[int, 
     return binary_dilation(sil, iterations=grow) if grow else sil
 
 
+def body_silhouette(body: BodyModel, frame) -> np.ndarray:
+    """(H,W) bool: the posed body alone in ``frame``'s camera (not grown), what the hint's evidence
+    compares the mask with."""
+    return _body_silhouette(body, frame.pose, frame.camera, np.asarray(frame.mask).shape[:2], grow=0)
+
+
 @dataclass(frozen=True)
 class HintEvidence:
     """What one front-view frame says about loose clothing (``frame_hint_evidence``).
@@ -401,7 +407,8 @@ class LegEvidence:
 
 def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_gap: float = 0.015,
                         min_span: float = 0.05, min_drop: float = 0.10, max_break: float = 0.03,
-                        max_start: float = 0.08, flare_window: float = 0.06) -> HintEvidence:
+                        max_start: float = 0.08, flare_window: float = 0.06,
+                        silhouette: np.ndarray | None = None) -> HintEvidence:
     """One frame's evidence (``HintEvidence``). Image rows run from the projected hip joints down to
     the ankles; in each, the pixels between the two leg axes that the posed body's own silhouette
     leaves as background are the gap; a row is tested when its gap is at least ``min_gap`` wide (in
@@ -431,7 +438,7 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
         return HintEvidence(False, False)
     from scipy.ndimage import binary_dilation
 
-    body_only = _body_silhouette(body, frame.pose, frame.camera, mask.shape, grow=0)  # for widths
+    body_only = silhouette if silhouette is not None else body_silhouette(body, frame)  # for widths
     sil = binary_dilation(body_only)  # for the gap: grown by a pixel, a body fitted a little thin
     xl, xr = _leg_axis_x(uv["L"], rows), _leg_axis_x(uv["R"], rows)
     tested, covered = [], []
@@ -477,7 +484,8 @@ def _run_around(row: np.ndarray, x: int) -> tuple[int, int] | None:
 
 
 def frame_leg_evidence(body: BodyModel, frame, *, min_flare: float = MIN_LEG_FLARE, min_span: float = 0.10,
-                       max_break: float = 0.03, min_rows: float = 0.5) -> LegEvidence:
+                       max_break: float = 0.03, min_rows: float = 0.5,
+                       silhouette: np.ndarray | None = None) -> LegEvidence:
     """One frame's evidence about wide trouser legs (``LegEvidence``). Image rows run from the lower
     projected knee down to the higher ankle; in each, for each leg, the run of mask pixels that holds
     the projected leg axis is compared with the run of the posed body's own silhouette that holds it
@@ -502,7 +510,7 @@ def frame_leg_evidence(body: BodyModel, frame, *, min_flare: float = MIN_LEG_FLA
     rows = np.arange(max(top, 0), min(bottom, mask.shape[0]))
     if len(rows) * metres_per_px < min_span:
         return LegEvidence(False, False)
-    sil = _body_silhouette(body, frame.pose, frame.camera, mask.shape, grow=0)  # widths: not grown
+    sil = silhouette if silhouette is not None else body_silhouette(body, frame)
     axis = {s: _leg_axis_x(uv[s], rows) for s in "LR"}
     counted, flares = [], []
     for i, r in enumerate(rows):
@@ -539,8 +547,12 @@ def scene_hint_evidence(body: BodyModel, frames, *, max_frames: int = 8, **thres
     """``frame_hint_evidence`` (with its ``thresholds``), with ``frame_leg_evidence`` as its
     ``legs``, for up to ``max_frames`` frames spread evenly over the sequence."""
     picks = np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)
-    return [replace(frame_hint_evidence(body, frames[i], **thresholds), legs=frame_leg_evidence(body, frames[i]))
-            for i in sorted(set(picks.tolist()))]
+    out = []
+    for i in sorted(set(picks.tolist())):
+        sil = body_silhouette(body, frames[i])
+        out.append(replace(frame_hint_evidence(body, frames[i], silhouette=sil, **thresholds),
+                           legs=frame_leg_evidence(body, frames[i], silhouette=sil)))
+    return out
 
 
 def hint_from_evidence(body: BodyModel, evidence: list[HintEvidence], *, min_share: float = 0.5) -> VolumeHint | None:
