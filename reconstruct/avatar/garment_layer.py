@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
-from scipy.ndimage import gaussian_filter, gaussian_filter1d
+from scipy.ndimage import binary_closing, binary_dilation, gaussian_filter, gaussian_filter1d
 from scipy.spatial import cKDTree
 
 from ..body.base import BodyModel
@@ -77,6 +77,11 @@ class VolumeHint:
     standoff_hem: float = 0.06
     two_legs: bool = False  # one tube round each leg (trousers) instead of one round both
 
+    @property
+    def tubes(self) -> int:
+        """How many tubes the layer has (2 for trousers: left leg, then right)."""
+        return 2 if self.two_legs else 1
+
     def __post_init__(self) -> None:
         if not self.hem_z < self.top_z:
             raise ValueError(f"volume hint: hem ({self.hem_z:.3f} m) must be below the top ({self.top_z:.3f} m)")
@@ -104,8 +109,8 @@ class GarmentLayer:
 
     @property
     def tubes(self) -> int:
-        """How many tubes the columns hold (2 for trousers: left leg, then right)."""
-        return 2 if self.hint.two_legs else 1
+        """How many tubes the columns hold (``VolumeHint.tubes``)."""
+        return self.hint.tubes
 
     def edges(self) -> np.ndarray:
         """(E,2) grid neighbours: down each column and round each tube's ring (wrapping)."""
@@ -293,7 +298,7 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int = 64, ro
     ``cols`` columns, or with ``hint.two_legs`` one per leg (left then right, ``cols // 2`` each; each
     takes the torso and legs on its side of the midline, overlapping by 3 cm at the seat, and does
     not hang: it follows its leg). ``diffusion``: the weight filter's sigma in grid rows and columns."""
-    tubes = 2 if hint.two_legs else 1
+    tubes = hint.tubes
     if cols < 8 * tubes:
         raise ValueError(f"garment layer: need at least {8 * tubes} columns, found {cols}")
     cols //= tubes
@@ -347,8 +352,6 @@ def _leg_axis_x(J2: np.ndarray, rows: np.ndarray) -> np.ndarray:
 
 def _body_silhouette(body: BodyModel, pose: BodyPose, camera, shape: tuple[int, int], grow: int = 1) -> np.ndarray:
     """(H,W) bool: the posed body alone, splatted from points on its triangles and closed."""
-    from scipy.ndimage import binary_closing, binary_dilation
-
     v = body.posed_vertices(pose).numpy()
     f = body.faces.numpy()
     bary = np.array([[1, 1, 1], [4, 1, 1], [1, 4, 1], [1, 1, 4]], float) / np.array([[3.0], [6.0], [6.0], [6.0]])
@@ -405,6 +408,20 @@ class LegEvidence:
     span: float = 0.0
 
 
+def _front_legs(body: BodyModel, frame, depth_bone: str) -> tuple[np.ndarray, dict, np.ndarray, float]:
+    """What both kinds of evidence read from a front-view frame: the mask (H,W) bool, the projected
+    leg chains ``{"L"|"R": (3,2)}`` (hip, knee, ankle image points), the chain's canonical heights
+    (3,) and metres per pixel at the depth of ``depth_bone``."""
+    L = body.bone_labels
+    marks = landmark_heights(body)
+    cz = np.array([marks["hips"] - 0.06, marks["knee"], marks["ankle"]])
+    J = body.posed_joints(frame.pose).numpy()
+    uv = {s: frame.camera.project(J[[L.index(f"{n}.{s}") for n in ("upperleg01", "lowerleg01", "foot")]])[0]
+          for s in "LR"}
+    depth = float(frame.camera.project(J[[L.index(depth_bone)]])[1][0])
+    return np.asarray(frame.mask) > 0.5, uv, cz, depth / float(frame.camera.fx)
+
+
 def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_gap: float = 0.015,
                         min_span: float = 0.05, min_drop: float = 0.10, max_break: float = 0.03,
                         max_start: float = 0.08, flare_window: float = 0.06,
@@ -422,22 +439,12 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
     midpoint (a hand apart from the cloth is not in it) less the body's extent inside that run; the
     90th percentile of those rows (the hem's lowest row is the front of the hem's ellipse in the
     image, narrower than the cloth above it)."""
-    L = body.bone_labels
-    names = {s: [f"upperleg01.{s}", f"lowerleg01.{s}", f"foot.{s}"] for s in "LR"}
-    marks = landmark_heights(body)
-    cz = np.array([marks["hips"] - 0.06, marks["knee"], marks["ankle"]])  # canonical heights of the chain
-    mask = np.asarray(frame.mask) > 0.5
-    J = body.posed_joints(frame.pose).numpy()
-    uv = {s: frame.camera.project(J[[L.index(n) for n in names[s]]])[0] for s in "LR"}
-    depth = float(frame.camera.project(J[[L.index("upperleg01.L")]])[1][0])
-    metres_per_px = depth / float(frame.camera.fx)
+    mask, uv, cz, metres_per_px = _front_legs(body, frame, "upperleg01.L")
     top = int(np.ceil(max(uv["L"][0, 1], uv["R"][0, 1])))
     bottom = int(np.floor(min(uv["L"][2, 1], uv["R"][2, 1])))
     rows = np.arange(max(top, 0), min(bottom, mask.shape[0]))
     if len(rows) < 4:
         return HintEvidence(False, False)
-    from scipy.ndimage import binary_dilation
-
     body_only = silhouette if silhouette is not None else body_silhouette(body, frame)  # for widths
     sil = binary_dilation(body_only)  # for the gap: grown by a pixel, a body fitted a little thin
     xl, xr = _leg_axis_x(uv["L"], rows), _leg_axis_x(uv["R"], rows)
@@ -464,7 +471,7 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
         return HintEvidence(True, False, drop=drop, rows=(tested[0], hem_row))
     hem_z = float(np.interp(hem_row, uv["L"][:, 1], cz))  # along hip -> knee -> ankle
     widths = []  # the cloth's width beyond the body's over the window above the hem
-    for r in [c for c in covered if 0 <= hem_row - c <= flare_window / metres_per_px and c <= hem_row]:
+    for r in [c for c in covered if 0 <= hem_row - c <= flare_window / metres_per_px]:
         centre = int(round(0.5 * (np.interp(r, rows, xl) + np.interp(r, rows, xr))))
         run = _run_around(mask[r], centre)  # the cloth's run (hands apart from it are not cloth)
         inside = np.flatnonzero(body_only[r, run[0]:run[1] + 1]) if run is not None else []
@@ -496,15 +503,7 @@ def frame_leg_evidence(body: BodyModel, frame, *, min_flare: float = MIN_LEG_FLA
     most ``max_break``; the longest run) that spans ``min_span``: the mask stands out round the lower
     legs over a length, which a body fitted a little thin (a pixel or two) does not do. The hem is
     the run's lowest row, the flare the 90th percentile of the rows' flares in the 5 cm above it."""
-    L = body.bone_labels
-    names = {s: [f"upperleg01.{s}", f"lowerleg01.{s}", f"foot.{s}"] for s in "LR"}
-    marks = landmark_heights(body)
-    cz = np.array([marks["hips"] - 0.06, marks["knee"], marks["ankle"]])
-    mask = np.asarray(frame.mask) > 0.5
-    J = body.posed_joints(frame.pose).numpy()
-    uv = {s: frame.camera.project(J[[L.index(n) for n in names[s]]])[0] for s in "LR"}
-    depth = float(frame.camera.project(J[[L.index("lowerleg01.L")]])[1][0])
-    metres_per_px = depth / float(frame.camera.fx)
+    mask, uv, cz, metres_per_px = _front_legs(body, frame, "lowerleg01.L")
     top = int(np.ceil(max(uv["L"][1, 1], uv["R"][1, 1])))
     bottom = int(np.floor(min(uv["L"][2, 1], uv["R"][2, 1])))
     rows = np.arange(max(top, 0), min(bottom, mask.shape[0]))
