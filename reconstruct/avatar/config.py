@@ -51,6 +51,8 @@ class AvatarConfig:
     # a layer Gaussian's opacity is sigmoid(gain x its parameter), the parameter trained at the
     # decoder's learning rate: the gain is the opacity logit's learning rate relative to the decoder's
     garment_opacity_gain: float = 10.0
+    # metres between the layer's rows; its columns are spaced alike round the hips (64 at 2 cm)
+    garment_layer_step: float = 0.02
 
     @classmethod
     def paper(cls, **kw) -> "AvatarConfig":
@@ -86,5 +88,8 @@ class AvatarConfig:
         if not 0 < self.garment_opacity_init < 1 or not self.garment_opacity_gain > 0:
             raise ValueError(f"AvatarConfig: need 0 < garment_opacity_init < 1 and garment_opacity_gain > 0, found "
                              f"{self.garment_opacity_init} and {self.garment_opacity_gain}")
+        if not 0.005 <= self.garment_layer_step <= 0.1:
+            raise ValueError(f"AvatarConfig.garment_layer_step must be in [0.005, 0.1] metres, found "
+                             f"{self.garment_layer_step}")
         if self.pose_feature_channels != self.feature_channels:
             raise ValueError("AvatarConfig.pose_feature_channels must equal feature_channels: P replaces the second S")

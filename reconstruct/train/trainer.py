@@ -101,7 +101,8 @@ class Trainer:
                 raise ValueError(f"Trainer: garment_layer must be a GarmentLayer, None or {FROM_CONFIG!r}, "
                                  f"found {garment_layer!r}")
             garment_layer = garment_layer_for(body, [scene.frames[i] for i in training_frames],
-                                              config.avatar.garment_layer, f"scene {scene.name}")
+                                              config.avatar.garment_layer, f"scene {scene.name}",
+                                              row_step=config.avatar.garment_layer_step)
             if garment_layer is not None:
                 print(garment_layer.describe(), file=sys.stderr)
         model = AvatarModel(body, config.avatar, layer=garment_layer).to(self.device)
