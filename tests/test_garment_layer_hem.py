@@ -56,8 +56,8 @@ def test_hem_rows_keep_the_weights_of_an_even_grid(body):
     two grids share, the layer with the fine band and the one without agree (the band only adds
     rows); the band's own rows lie between their neighbours' weights."""
     hint = _hint(body)
-    fine = build_garment_layer(body, hint, cols=16, hem_band=0.03)
-    even = build_garment_layer(body, hint, cols=16, hem_band=0.0)
+    fine = build_garment_layer(body, hint, cols=16, row_step=0.02, hem_band=0.03)
+    even = build_garment_layer(body, hint, cols=16, row_step=0.02, hem_band=0.0)
     Rf, C = fine.grid_shape
     Re, _ = even.grid_shape
     assert Rf > Re and fine.num_gaussians == Rf * C
@@ -70,7 +70,7 @@ def test_hem_rows_keep_the_weights_of_an_even_grid(body):
     gap = float((at_fine - Wf.double()).abs().max())
     assert gap < 0.08, gap
     # diffused over the fine rows as if they were 2 cm apart, the hem's weights would differ more
-    coarse_rows = build_garment_layer(body, hint, cols=16, hem_band=0.03, diffusion=(0.75, 6.0))
+    coarse_rows = build_garment_layer(body, hint, cols=16, row_step=0.02, hem_band=0.03, diffusion=(0.75, 6.0))
     assert float((coarse_rows.weights.reshape(Rf, C, -1).double() - at_fine).abs().max()) > gap
     assert torch.allclose(fine.weights.sum(1), torch.ones(fine.num_gaussians), atol=1e-5)
 
@@ -112,8 +112,8 @@ def test_the_hem_ends_sharply_where_nothing_stands_behind(body):
     the fine band's height. Training then makes the last rows transparent where they spill past the
     mask, and the soft edge moves up into the cloth: holes wherever no leg stands behind it."""
     hint = _hint(body)
-    prof_f, mpp, row_f = _back_alpha_profile(body, build_garment_layer(body, hint, cols=32, hem_band=0.03))
-    prof_e, _, row_e = _back_alpha_profile(body, build_garment_layer(body, hint, cols=32, hem_band=0.0))
+    prof_f, mpp, row_f = _back_alpha_profile(body, build_garment_layer(body, hint, cols=32, row_step=0.02, hem_band=0.03))
+    prof_e, _, row_e = _back_alpha_profile(body, build_garment_layer(body, hint, cols=32, row_step=0.02, hem_band=0.0))
 
     def edge(profile, last_row):
         opaque = np.flatnonzero(profile >= 0.9)
