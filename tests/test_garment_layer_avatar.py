@@ -316,7 +316,7 @@ def test_layer_step_sets_rows_and_columns(tiny_scene, tiny_config, body):
 
     from reconstruct.avatar.garment_layer import layer_columns
 
-    assert AvatarConfig().garment_layer_step == 0.02
+    assert AvatarConfig().garment_layer_step == 0.014
     assert layer_columns(0.02) == 64 and layer_columns(0.014) == 92 and layer_columns(0.1) == 16
     assert all(layer_columns(s) % 2 == 0 for s in np.linspace(0.005, 0.1, 40))
     for bad in (0.001, 0.5):

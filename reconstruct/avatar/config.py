@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 SPLATS = ("disc", "sphere")
 GARMENT_LAYER_MODES = ("off", "auto", "on")
+# metres between a garment layer's rows (docs/loose_clothing.md, "A finer layer")
+GARMENT_LAYER_STEP = 0.014
 
 
 @dataclass
@@ -51,8 +53,9 @@ class AvatarConfig:
     # a layer Gaussian's opacity is sigmoid(gain x its parameter), the parameter trained at the
     # decoder's learning rate: the gain is the opacity logit's learning rate relative to the decoder's
     garment_opacity_gain: float = 10.0
-    # metres between the layer's rows; its columns are spaced alike round the hips (64 at 2 cm)
-    garment_layer_step: float = 0.02
+    # metres between the layer's rows; its columns are spaced alike round the hips (92 at 1.4 cm):
+    # rows every 2 cm (64 columns) could not carry a 4 cm check round to the unseen side
+    garment_layer_step: float = GARMENT_LAYER_STEP
 
     @classmethod
     def paper(cls, **kw) -> "AvatarConfig":

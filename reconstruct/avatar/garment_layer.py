@@ -10,7 +10,7 @@ This layer adds Gaussians where the silhouette says there is something:
   convex hull of the body slice (torso above the hips; torso, thighs and shins below them; its
   polar radius round the slice's centre, ``body.slices.hull_polar_radii``: the convex envelope, so
   one ring spans both legs) plus a standoff growing from the top to the hem, never narrowing below
-  the hips (cloth hangs); rows every 2 cm (``AvatarConfig.garment_layer_step``), every 5 mm over
+  the hips (cloth hangs); rows every 1.4 cm (``AvatarConfig.garment_layer_step``), every 5 mm over
   the last 3 cm, reaching 1 cm below the hint's hem (``row_heights``: the hem is an open edge);
 * skinning: each Gaussian takes a Gaussian-weighted average of the weights of the nearest body
   points (relative to the nearest), then the weights are diffused over the grid (a Gaussian filter,
@@ -47,7 +47,7 @@ from ..body.lbs import Skinning
 from ..body.parts import PART_INDEX, PART_NAMES
 from ..body.pose import BodyPose
 from ..body.slices import hull_polar_radii, ring_directions
-from .config import GARMENT_LAYER_MODES
+from .config import GARMENT_LAYER_MODES, GARMENT_LAYER_STEP
 
 _COVERED = ("torso", "thigh.L", "thigh.R", "shin.L", "shin.R")
 
@@ -320,11 +320,11 @@ def _interp_rows(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return A
 
 
-def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int = 64, row_step: float = 0.02,
+def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None = None, row_step: float = GARMENT_LAYER_STEP,
                         hem_margin: float = 0.01, hem_band: float = 0.03, hem_step: float = 0.005,
                         k: int = 24, sigma: float = 0.04, diffusion: tuple[float, float] = (3.0, 6.0)) -> GarmentLayer:
     """The garment layer of ``body`` in the region of ``hint`` (see the module docstring): one tube of
-    ``cols`` columns, or with ``hint.two_legs`` one per leg (left then right, ``cols // 2`` each; each
+    ``cols`` columns (by default ``layer_columns(row_step)``), or with ``hint.two_legs`` one per leg (left then right, ``cols // 2`` each; each
     takes the torso and legs on its side of the midline, overlapping by 3 cm at the seat, and does
     not hang: it follows its leg). ``diffusion``: the weight filter's sigma in rows of ``row_step``
     and in columns.
@@ -336,6 +336,7 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int = 64, ro
     read, a little high on the benchmark) with rows every ``hem_step`` over its last ``hem_band``:
     small discs there give a sharp edge, and the learned opacity cuts the rows below the cloth."""
     tubes = hint.tubes
+    cols = layer_columns(row_step) if cols is None else cols
     if cols < 8 * tubes:
         raise ValueError(f"garment layer: need at least {8 * tubes} columns, found {cols}")
     if hem_margin < 0 or hem_band < 0 or hem_step <= 0:
@@ -660,7 +661,7 @@ def layer_columns(row_step: float) -> int:
 
 
 def garment_layer_for(body: BodyModel, frames, mode: str, what: str = "scene",
-                      row_step: float = 0.02) -> GarmentLayer | None:
+                      row_step: float = GARMENT_LAYER_STEP) -> GarmentLayer | None:
     """The layer a run asks for (``AvatarConfig.garment_layer``): ``off`` none; ``auto`` the layer of
     the masks' volume hint (``volume_hint_from_masks`` over ``frames``), none for tight clothing;
     ``on`` the same, an error when the masks show no loose clothing. A body without Anny's leg
