@@ -309,7 +309,7 @@ def test_opacity_prior_is_the_mean_transparency_and_raises_hidden_opacities(tiny
     assert bool((after > before).all()), (before.mean(), after.mean())
 
 
-def test_layer_step_sets_rows_and_columns(tiny_scene, tiny_config, body):
+def test_layer_step_sets_rows_and_columns(tiny_scene, tiny_config, body, monkeypatch):
     """``AvatarConfig.garment_layer_step``: metres between the layer's rows, the columns spaced alike
     (64 at 2 cm, 92 at 1.4 cm), even, at least 16; out-of-range steps are a clear error."""
     import dataclasses
@@ -330,16 +330,10 @@ def test_layer_step_sets_rows_and_columns(tiny_scene, tiny_config, body):
     # the trainer builds the layer at the config's step (the tiny scene is tight: "on" needs a hint,
     # so the check goes through garment_layer_for's arguments)
     seen = {}
-    import reconstruct.train.trainer as trainer_module
-
-    real = trainer_module.garment_layer_for
-    trainer_module.garment_layer_for = lambda *a, **k: seen.update(k) or None
-    try:
-        cfg = dataclasses.replace(tiny_config, avatar=dataclasses.replace(tiny_config.avatar, garment_layer="auto",
-                                                                          garment_layer_step=0.03))
-        _trainer(tiny_scene, cfg, "config")
-    finally:
-        trainer_module.garment_layer_for = real
+    monkeypatch.setattr("reconstruct.train.trainer.garment_layer_for", lambda *a, **k: seen.update(k) or None)
+    cfg = dataclasses.replace(tiny_config, avatar=dataclasses.replace(tiny_config.avatar, garment_layer="auto",
+                                                                      garment_layer_step=0.03))
+    _trainer(tiny_scene, cfg, "config")
     assert seen == {"row_step": 0.03}
 
 

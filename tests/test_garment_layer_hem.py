@@ -52,9 +52,9 @@ def test_interp_rows_matches_np_interp():
 
 
 def test_hem_rows_keep_the_weights_of_an_even_grid(body):
-    """The weights are diffused over rows every row_step whatever the hem's rows: at the heights the
-    two grids share, the layer with the fine band and the one without agree (the band only adds
-    rows); the band's own rows lie between their neighbours' weights."""
+    """The weights are diffused over rows every row_step whatever the hem's rows: the layer with the
+    fine band agrees with the evenly spaced one interpolated to its heights, closer than when the
+    fine rows are diffused as if they were row_step apart."""
     hint = _hint(body)
     fine = build_garment_layer(body, hint, cols=16, row_step=0.02, hem_band=0.03)
     even = build_garment_layer(body, hint, cols=16, row_step=0.02, hem_band=0.0)
@@ -101,7 +101,7 @@ def _back_alpha_profile(body, layer) -> tuple[np.ndarray, float, float]:
     alpha = r.alpha.reshape(size, size).numpy()
     uv, _ = cam.project(back[None])
     col = int(round(float(uv[0, 0])))
-    metres_per_px = 2 * (dist + back[1]) * np.tan(np.radians(fov / 2)) / size
+    metres_per_px = 2 * dist * np.tan(np.radians(fov / 2)) / size  # the back point is ``dist`` from the camera
     return alpha[:, col], metres_per_px, float(uv[0, 1])
 
 
@@ -112,8 +112,9 @@ def test_the_hem_ends_sharply_where_nothing_stands_behind(body):
     the fine band's height. Training then makes the last rows transparent where they spill past the
     mask, and the soft edge moves up into the cloth: holes wherever no leg stands behind it."""
     hint = _hint(body)
-    prof_f, mpp, row_f = _back_alpha_profile(body, build_garment_layer(body, hint, cols=32, row_step=0.02, hem_band=0.03))
-    prof_e, _, row_e = _back_alpha_profile(body, build_garment_layer(body, hint, cols=32, row_step=0.02, hem_band=0.0))
+    fine, even = (build_garment_layer(body, hint, cols=32, row_step=0.02, hem_band=band) for band in (0.03, 0.0))
+    prof_f, mpp, row_f = _back_alpha_profile(body, fine)
+    prof_e, _, row_e = _back_alpha_profile(body, even)
 
     def edge(profile, last_row):
         opaque = np.flatnonzero(profile >= 0.9)

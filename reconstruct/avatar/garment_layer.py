@@ -310,22 +310,18 @@ def row_heights(top_z: float, bottom_z: float, row_step: float, hem_band: float 
 
 def _interp_rows(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """(len(dst), len(src)) the matrix of linear interpolation from rows at heights ``src`` to
-    heights ``dst`` (both decreasing; clamped at the ends)."""
-    A = np.zeros((len(dst), len(src)))
-    x = -np.asarray(src)  # increasing
-    for i, z in enumerate(-np.asarray(dst)):
-        j = int(np.clip(np.searchsorted(x, z) - 1, 0, len(x) - 2))
-        t = float(np.clip((z - x[j]) / max(x[j + 1] - x[j], 1e-12), 0.0, 1.0))
-        A[i, j], A[i, j + 1] = 1.0 - t, t
-    return A
+    heights ``dst`` (both decreasing; clamped at the ends): ``np.interp`` of each unit vector."""
+    x, z = -np.asarray(src, float), -np.asarray(dst, float)  # increasing, as np.interp wants
+    return np.stack([np.interp(z, x, e) for e in np.eye(len(x))], axis=1)
 
 
-def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None = None, row_step: float = GARMENT_LAYER_STEP,
+def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None = None,
+                        row_step: float = GARMENT_LAYER_STEP,
                         hem_margin: float = 0.01, hem_band: float = 0.03, hem_step: float = 0.005,
                         k: int = 24, sigma: float = 0.04, diffusion: tuple[float, float] = (3.0, 6.0)) -> GarmentLayer:
     """The garment layer of ``body`` in the region of ``hint`` (see the module docstring): one tube of
-    ``cols`` columns (by default ``layer_columns(row_step)``), or with ``hint.two_legs`` one per leg (left then right, ``cols // 2`` each; each
-    takes the torso and legs on its side of the midline, overlapping by 3 cm at the seat, and does
+    ``cols`` columns (by default ``layer_columns(row_step)``), or with ``hint.two_legs`` one per
+    leg (left then right, ``cols // 2`` each; each takes the torso and legs on its side of the midline, overlapping by 3 cm at the seat, and does
     not hang: it follows its leg). ``diffusion``: the weight filter's sigma in rows of ``row_step``
     and in columns.
 
@@ -687,4 +683,4 @@ def garment_layer_for(body: BodyModel, frames, mode: str, what: str = "scene",
                              f"by {100 * MIN_LEG_FLARE:.1f} cm or more), so there is nowhere to put a garment layer; use "
                              f"avatar.garment_layer=auto to train without one in that case")
         return None
-    return build_garment_layer(body, hint, cols=layer_columns(row_step), row_step=row_step)
+    return build_garment_layer(body, hint, row_step=row_step)
