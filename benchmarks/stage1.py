@@ -8,8 +8,17 @@ Each configuration runs in its own process (thread settings must be fixed before
 prints ms per step for LBS (+ the facing test), decoder forward (sampling S, the MLP, the
 interpolation to the Gaussians), rasterizer forward (projection and kernel), losses, backward,
 Adam; Gaussians decoded per step; steps per second and Gaussian-steps per second (Gaussians in the
-avatar x steps per second). Configurations are run in turn, ``--rounds`` times each, interleaved
-(A B A B) so that a change of load on a shared machine hits both.
+avatar x steps per second); and the trainer's own step (``Trainer.step``, everything it does:
+logging, the seen flags, densification bookkeeping) timed over the same number of steps after the
+pieces. Configurations are run in turn, ``--rounds`` times each, interleaved (A B A B) so that a
+change of load on a shared machine hits both.
+
+The ``loose-*`` configurations train the wide-trousers scene (``clothing=wide_trousers``) with the
+current defaults: without the garment layer (``loose-off``), with its rows every 2 cm (the
+layer before, ``loose-2cm``) and every 1.4 cm (the default, ``loose-1.4cm``); what the layer
+adds is its Gaussians, the alpha-against-mask loss and the spacing regulariser over its grid
+edges (all in the pieces above, as in ``GivenViewStep``):
+    python benchmarks/stage1.py --configs loose-off,loose-2cm,loose-1.4cm --rounds 2
 """
 
 from __future__ import annotations
@@ -24,12 +33,15 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-CONFIGS = {  # name -> (Stage1Config constructor, avatar overrides)
-    "paper": ("paper", {}),
-    "paper-256": ("paper", {"gaussian_resolution": 256}),
-    "default": ("default", {}),
-    "default-128": ("default", {"gaussian_resolution": 128}),
-    "default-nocull": ("default", {}),
+CONFIGS = {  # name -> (Stage1Config constructor, avatar overrides, the scene's clothing)
+    "paper": ("paper", {}, None),
+    "paper-256": ("paper", {"gaussian_resolution": 256}, None),
+    "default": ("default", {}, None),
+    "default-128": ("default", {"gaussian_resolution": 128}, None),
+    "default-nocull": ("default", {}, None),
+    "loose-off": ("default", {"garment_layer": "off"}, "wide_trousers"),
+    "loose-2cm": ("default", {"garment_layer_step": 0.02}, "wide_trousers"),
+    "loose-1.4cm": ("default", {"garment_layer_step": 0.014}, "wide_trousers"),
 }
 
 
@@ -44,8 +56,9 @@ def child(cfg: dict) -> dict:
     from reconstruct.train.config import Stage1Config
     from reconstruct.train.render import render_avatar
     from reconstruct.train.trainer import Trainer
+    from reconstruct.avatar.garment_layer import neighbour_strain
 
-    kind, avatar = CONFIGS[cfg["name"]]
+    kind, avatar, clothing = CONFIGS[cfg["name"]]
     base = Stage1Config.paper() if kind == "paper" else Stage1Config()
     over = {"eval_every_seconds": 1e9}
     if avatar:
@@ -53,7 +66,8 @@ def child(cfg: dict) -> dict:
     if cfg["name"].endswith("nocull"):
         over["cull_backfacing"] = None
     c = config_layer.with_overrides(base, over)
-    scene = load_scene(f"synthetic:seed=0,size={cfg['size']}", progress=False)
+    spec = f"synthetic:seed=0,size={cfg['size']}" + (f",clothing={clothing}" if clothing else "")
+    scene = load_scene(spec, progress=False)
     s = Trainer(scene, c)
     for _ in range(3):
         s.step()
@@ -85,17 +99,27 @@ def child(cfg: dict) -> dict:
         r = timed("raster fwd", lambda: render_avatar(posed, tgt.camera, s.background, normals=True, first_hit=True))
 
         def loss_fn():
-            return (0.8 * L.mse(r.rgb, tgt.image) + 0.2 * L.ssim_loss(r.rgb, tgt.image)
+            loss = (0.8 * L.mse(r.rgb, tgt.image) + 0.2 * L.ssim_loss(r.rgb, tgt.image)
                     + 0.8 * L.mse(r.normal, tgt.normal) + 0.85 * L.mean_square(canon.offsets_raw)
                     + 0.03 * L.mean_square(canon.scales) + L.mean_square(canon.features))
+            if model.num_layer:  # the garment layer's terms, as GivenViewStep adds them
+                edges, rest = model.layer_edge_rows(idx)
+                loss = loss + c.lambda_alpha * L.mse(r.alpha, tgt.mask) + c.lambda_layer_spacing * neighbour_strain(
+                    canon.means, edges, rest)
+            return loss
 
         loss = timed("losses", loss_fn)
         s.optimizer.zero_grad(set_to_none=True)
         timed("backward", loss.backward)
         timed("adam", s.optimizer.step)
     total = time.perf_counter() - t_all
-    return {**cfg, "gaussians": model.num_gaussians, "nodes": model.num_nodes, "decoded": decoded / n,
-            "ms": {k: 1000 * v / n for k, v in parts.items()}, "step_ms": 1000 * total / n, "it_per_s": n / total}
+    t_trainer = time.perf_counter()
+    for _ in range(n):
+        s.step()
+    trainer_ms = 1000 * (time.perf_counter() - t_trainer) / n
+    return {**cfg, "gaussians": model.num_gaussians, "layer": model.num_layer, "nodes": model.num_nodes,
+            "decoded": decoded / n, "ms": {k: 1000 * v / n for k, v in parts.items()}, "step_ms": 1000 * total / n,
+            "it_per_s": n / total, "trainer_ms": trainer_ms}
 
 
 def main() -> None:
@@ -128,8 +152,8 @@ def main() -> None:
                 continue
             rows[name].append(json.loads(out.stdout.strip().splitlines()[-1]))
     keys = ["lbs", "decoder", "raster fwd", "losses", "backward", "adam"]
-    print(f"{'config':<15} {'N':>6} {'decoded':>7} " + " ".join(f"{k:>10}" for k in keys)
-          + f" {'step ms':>8} {'it/s':>6} {'Gauss-steps/s':>13}")
+    print(f"{'config':<15} {'N':>6} {'layer':>6} {'decoded':>7} " + " ".join(f"{k:>10}" for k in keys)
+          + f" {'step ms':>8} {'it/s':>6} {'Gauss-steps/s':>13} {'Trainer.step ms':>15}")
     summary = {}
     for name, rs in rows.items():
         if not rs:
@@ -137,9 +161,10 @@ def main() -> None:
         best = min(rs, key=lambda r: r["step_ms"])  # the least disturbed round
         gsps = best["gaussians"] * best["it_per_s"]
         summary[name] = {**best, "gaussian_steps_per_s": gsps}
-        print(f"{name:<15} {best['gaussians']:>6} {best['decoded']:>7.0f} "
+        print(f"{name:<15} {best['gaussians']:>6} {best['layer']:>6} {best['decoded']:>7.0f} "
               + " ".join(f"{best['ms'][k]:>10.1f}" for k in keys)
-              + f" {best['step_ms']:>8.1f} {best['it_per_s']:>6.2f} {gsps:>13.0f}")
+              + f" {best['step_ms']:>8.1f} {best['it_per_s']:>6.2f} {gsps:>13.0f}"
+              + f" {min(r['trainer_ms'] for r in rs):>15.1f}")
     if "paper" in summary:
         ref = summary["paper"]["gaussian_steps_per_s"]
         print("Gaussian-steps/s relative to 'paper': "
