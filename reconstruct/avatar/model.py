@@ -56,6 +56,8 @@ from .garment_layer import GARMENT_PART, GarmentLayer
 from .gaussian_sets import CanonicalGaussians, PosedGaussians, frame_quaternions
 from .pose_encoder import PoseEncoder
 
+LAYER_SKIN_SUPPORT = 1e-3  # bones the garment layer's learned skinning may reweight: weight above this somewhere on it
+
 
 def _bilinear_nodes(texel_rc: np.ndarray, fine: int, coarse: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For texels of a ``fine`` map, their four surrounding cells of a ``coarse`` grid over the same
@@ -155,6 +157,15 @@ class AvatarModel(nn.Module):
             p = layer.positions.float()
             self.register_buffer("layer_edges", edges + self.num_body, persistent=False)  # (E,2) Gaussian ids
             self.register_buffer("layer_rest", (p[edges[:, 0]] - p[edges[:, 1]]).norm(dim=1), persistent=False)
+            # learned skinning (see layer_skin_weights): one log-factor per bone the layer follows,
+            # per row of each tube, zero = the layer's built weights
+            support = torch.nonzero(layer.weights.amax(0) > LAYER_SKIN_SUPPORT)[:, 0]
+            tube_cols = cols // layer.tubes
+            self.register_buffer("layer_skin_support", support, persistent=False)  # (S,) bone ids
+            self.register_buffer("layer_skin_group", rc[:, 0] * layer.tubes + rc[:, 1] // tube_cols,
+                                 persistent=False)  # (M,) the (row, tube) of each layer Gaussian
+            self.register_buffer("canonical_transforms", body.canonical_transforms.float(), persistent=False)
+            self.layer_skin_logit = nn.Parameter(torch.zeros(rows * layer.tubes, len(support)))
 
     @property
     def num_gaussians(self) -> int:
@@ -170,13 +181,17 @@ class AvatarModel(nn.Module):
         """How many decoder evaluations decode every Gaussian."""
         return int(self.node_grid.shape[0]) + self.num_layer
 
-    def layer_param_groups(self, lr_features: float, lr_opacity: float) -> list[dict]:
+    def layer_param_groups(self, lr_features: float, lr_opacity: float, lr_skinning: float = 0.0) -> list[dict]:
         """Adam parameter groups of the garment layer (its feature map, at the body feature map's rate;
-        its opacity parameters) for a stage plan; [] without a layer."""
+        its opacity parameters; with ``lr_skinning`` > 0 its learned skinning, ``layer_skin_logit``)
+        for a stage plan; [] without a layer."""
         if self.layer is None:
             return []
-        return [{"params": [self.layer_features], "lr": lr_features, "name": "layer_features"},
-                {"params": [self.layer_opacity], "lr": lr_opacity, "name": "layer_opacity"}]
+        groups = [{"params": [self.layer_features], "lr": lr_features, "name": "layer_features"},
+                  {"params": [self.layer_opacity], "lr": lr_opacity, "name": "layer_opacity"}]
+        if lr_skinning > 0:
+            groups.append({"params": [self.layer_skin_logit], "lr": lr_skinning, "name": "layer_skinning"})
+        return groups
 
     def sample(self, feature_map: torch.Tensor, grid: torch.Tensor | None = None) -> torch.Tensor:
         """(1,C,H,W) map sampled bilinearly at every Gaussian's texel (or at ``grid``) -> (N,C)."""
@@ -308,11 +323,38 @@ class AvatarModel(nn.Module):
                                   self.opacities(index))
 
     # ----- posing ---------------------------------------------------------------------------
+    def layer_skin_weights(self) -> torch.Tensor:
+        """(M,J) the garment layer's skinning weights as trained: its built weights (the body's,
+        carried out and diffused over the layer's grid) with each bone of their support scaled by
+        ``exp(layer_skin_logit)`` of the Gaussian's row and tube, then normalised. One factor per
+        row and bone, shared round the tube, so that what the views teach the front (how far the
+        hem follows the knees rather than the hips) holds behind too, where no view reaches."""
+        w = self.skin_weights[self.num_body:]
+        scaled = w[:, self.layer_skin_support] * self.layer_skin_logit.exp()[self.layer_skin_group]
+        w = w.index_copy(1, self.layer_skin_support, scaled)
+        return w / w.sum(1, keepdim=True)
+
+    def layer_skinning_prior(self) -> torch.Tensor:
+        """Mean squared log-factor of the layer's learned skinning plus the mean squared change
+        between a tube's neighbouring rows: the weights stay near the built ones and change
+        smoothly down the cloth."""
+        logit = self.layer_skin_logit
+        tubes = self.layer.tubes
+        by_row = logit.reshape(-1, tubes, logit.shape[1])
+        return logit.square().mean() + (by_row[1:] - by_row[:-1]).square().mean()
+
     def lbs_matrices(self, pose_transforms: torch.Tensor, index: torch.Tensor | None = None) -> torch.Tensor:
         """Per-Gaussian canonical -> observation matrices (N,4,4) for bone transforms (J,4,4) (of
-        the Gaussians ``index`` when given)."""
-        w = self.skin_weights if index is None else self.skin_weights[index]
-        inv = self.canonical_inverse if index is None else self.canonical_inverse[index]
+        the Gaussians ``index`` when given). The garment layer's use its learned weights
+        (``layer_skin_weights``), and their canonical inverse from those."""
+        if index is None:
+            index = torch.arange(self.num_gaussians, device=self.skin_weights.device)
+        w, inv = self.skin_weights[index], self.canonical_inverse[index]
+        if self.layer is not None:
+            at = torch.nonzero(index >= self.num_body)[:, 0]
+            wl = self.layer_skin_weights()[index[at] - self.num_body]
+            w = w.index_put((at,), wl)
+            inv = inv.index_put((at,), torch.linalg.inv(blend(wl, self.canonical_transforms.to(wl))))
         return blend(w, pose_transforms.to(w)) @ inv
 
     def facing(self, matrices: torch.Tensor, camera_center, cos_margin: float = 0.25) -> torch.Tensor:

@@ -214,7 +214,11 @@ class AvatarState:
             found = "none" if saved is None else f"{saved.get('grid_shape')}"
             raise ValueError(f"the avatar state holds a garment layer of grid {found}; this model has {have} "
                              f"(build the model with the state's layer first)")
-        self.model.load_state_dict(state["model"])
+        model_state = dict(state["model"])
+        if self.model.layer is not None and "layer_skin_logit" not in model_state:
+            # saved before the layer's skinning was learned: the built weights, i.e. zero factors
+            model_state["layer_skin_logit"] = torch.zeros_like(self.model.layer_skin_logit)
+        self.model.load_state_dict(model_state)
         with torch.no_grad():
             self.pose_delta.copy_(state["pose_delta"])
         self.seen = state["seen"].clone()

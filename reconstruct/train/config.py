@@ -70,6 +70,11 @@ class Stage1Config(StageSettings):
     # shows as translucent cloth and as cloth painted on the legs once they move; the alpha loss
     # still fades the layer where the silhouette shows nothing
     lambda_layer_opaque: float = 0.0
+    # the garment layer's learned skinning (AvatarModel.layer_skin_weights: a log-factor per row of
+    # each tube and bone): its Adam rate (0 = keep the built weights) and the weight of its prior
+    # (AvatarModel.layer_skinning_prior: near the built weights, smooth down the cloth). Stage I only
+    lr_layer_skinning: float = 0.0
+    lambda_layer_skinning: float = 1e-3
     # learning-rate decay over the budget (steps or minutes, whichever ends first): constant until
     # lr_decay_start of the stage, then geometric down to lr_final x at its end. GaussianAvatar's
     # x lr_gamma drops at 1/3 and 2/3 (``lr_milestones``; used instead when set, as in ``paper()``)

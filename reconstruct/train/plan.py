@@ -63,13 +63,13 @@ class Stage1Plan(StagePlan):
 
     def __init__(self, config: Stage1Config) -> None:
         self.settings = config
-        self.steps = {"given": GivenViewStep(config, marks_seen=True)}
+        self.steps = {"given": GivenViewStep(config, marks_seen=True, layer_skinning=True)}
 
     def param_groups(self, state: AvatarState) -> list[dict]:
         c = self.settings
         return [{"params": state.model.decoder.parameters(), "lr": c.lr_decoder, "name": "decoder"},
                 {"params": [state.model.features], "lr": c.lr_features, "name": "features"},
-                *state.model.layer_param_groups(c.lr_features, c.lr_decoder)]  # [] without a garment layer
+                *state.model.layer_param_groups(c.lr_features, c.lr_decoder, c.lr_layer_skinning)]  # [] without a layer
 
     def finish(self, context: StepContext) -> str | None:
         """The seen flags are recounted on the person (``seen_on_person``, train/seen_recount.py),

@@ -92,13 +92,17 @@ class GivenViewStep(TrainingStep):
     With a garment layer also: rendered alpha against the mask (``lambda_alpha``: the layer's
     opacities learn the silhouette) and the layer's neighbour-distance regulariser over the grid
     edges among the decoded Gaussians (``lambda_layer_spacing``).
-    ``marks_seen``: first-hit Gaussians that face the camera become seen (Eq. 7, Stage I)."""
+    ``marks_seen``: first-hit Gaussians that face the camera become seen (Eq. 7, Stage I).
+    ``layer_skinning``: the layer's skinning is trained (Stage I with ``lr_layer_skinning`` > 0), so
+    its prior is added (``lambda_layer_skinning``)."""
 
     kind = "given"
 
-    def __init__(self, config: Stage1Config, *, marks_seen: bool = True, lambda_pose_features: float = 0.0) -> None:
+    def __init__(self, config: Stage1Config, *, marks_seen: bool = True, lambda_pose_features: float = 0.0,
+                 layer_skinning: bool = False) -> None:
         self.config = config
         self.marks_seen = marks_seen
+        self.layer_skinning = layer_skinning and config.lr_layer_skinning > 0
         self.lambda_pose_features = lambda_pose_features
 
     def __call__(self, trainer: StepContext) -> StepOutcome:
@@ -148,6 +152,9 @@ class GivenViewStep(TrainingStep):
             edges, rest = model.layer_edge_rows(index)
             terms["layer_spacing"] = neighbour_strain(canon.means, edges, rest)
             weights["layer_spacing"] = cfg.lambda_layer_spacing
+            if self.layer_skinning:
+                terms["layer_skinning"] = model.layer_skinning_prior()
+                weights["layer_skinning"] = cfg.lambda_layer_skinning
             if cfg.lambda_layer_opaque:
                 terms["layer_opaque"] = (1.0 - model.opacities()[model.num_body:]).mean()
                 weights["layer_opaque"] = cfg.lambda_layer_opaque

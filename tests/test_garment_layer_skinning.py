@@ -1,0 +1,208 @@
+"""The garment layer's learned skinning (AvatarModel.layer_skin_weights; docs/loose_clothing.md,
+"Learned skinning"): one log-factor per row of each tube and bone of the layer's support, shared
+round the tube. Checked against a float64 NumPy reference, finite differences, and by learning a
+skinning back from posed positions; the Stage I plan trains it only when asked and Stage II never.
+Tiny sizes: layers built from hand-made VolumeHints on the tiny scene's body."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from reconstruct.avatar import AvatarConfig, AvatarModel
+from reconstruct.avatar.garment_layer import VolumeHint, build_garment_layer, landmark_heights
+from reconstruct.avatar.model import LAYER_SKIN_SUPPORT
+from reconstruct.body.pose import BodyPose
+
+
+def _config() -> AvatarConfig:
+    return AvatarConfig(gaussian_resolution=48, feature_resolution=32, feature_channels=8, pose_feature_channels=8,
+                        hidden=32)
+
+
+@pytest.fixture(scope="module")
+def body(tiny_scene):
+    return tiny_scene.body_model()
+
+
+def _skirt(body):
+    m = landmark_heights(body)
+    return build_garment_layer(body, VolumeHint(top_z=m["waist"], hem_z=m["knee"] + 0.08, standoff_hem=0.05),
+                               cols=16, row_step=0.06)
+
+
+def _trousers(body):
+    m = landmark_heights(body)
+    hint = VolumeHint(top_z=m["waist"], hem_z=m["ankle"] + 0.05, standoff_hem=0.05, two_legs=True)
+    return build_garment_layer(body, hint, cols=16, row_step=0.08)
+
+
+def _walk_pose(body, seed: int, amount: float = 0.5) -> BodyPose:
+    """Random rotations of every bone (a pose far from the canonical one, legs included)."""
+    rot = (np.random.default_rng(seed).random((body.num_joints, 3)) - 0.5) * amount
+    return BodyPose(rot, np.zeros(3), np.zeros(3))
+
+
+def _reference(layer, body, logit: np.ndarray, pose: BodyPose) -> tuple[np.ndarray, np.ndarray]:
+    """Float64 NumPy: the trained weights and the layer's LBS matrices, the grouping recomputed from
+    the grid (Gaussian k at row k // C, column k % C; tube = column // (C / tubes))."""
+    W0 = layer.weights.double().numpy()
+    support = np.flatnonzero(W0.max(0) > LAYER_SKIN_SUPPORT)
+    rows, C = layer.grid_shape
+    k = np.arange(len(W0))
+    group = (k // C) * layer.tubes + (k % C) // (C // layer.tubes)
+    W = W0.copy()
+    W[:, support] *= np.exp(logit[group])
+    W /= W.sum(1, keepdims=True)
+    T = body.bone_transforms(pose).double().numpy()
+    Cn = body.canonical_transforms.double().numpy()
+    M = np.einsum("nj,jab->nab", W, T) @ np.linalg.inv(np.einsum("nj,jab->nab", W, Cn))
+    return W, M
+
+
+@pytest.mark.parametrize("make", [_skirt, _trousers], ids=["one tube", "two tubes"])
+def test_zero_factors_are_the_built_weights(body, make):
+    layer = make(body)
+    torch.manual_seed(0)
+    m = AvatarModel(body, _config(), layer=layer)
+    assert torch.equal(m.layer_skin_logit, torch.zeros(layer.grid_shape[0] * layer.tubes, len(m.layer_skin_support)))
+    assert torch.allclose(m.layer_skin_weights(), layer.weights, atol=1e-6)
+    T = body.bone_transforms(_walk_pose(body, 1)).float()
+    M = m.lbs_matrices(T)
+    before = blend_formula(m, T)  # the fixed-weight formula: the buffers' weights and inverses
+    assert torch.equal(M[:m.num_body], before[:m.num_body])  # the body is untouched
+    assert torch.allclose(M[m.num_body:], before[m.num_body:], atol=2e-5)
+
+
+def blend_formula(m: AvatarModel, T: torch.Tensor) -> torch.Tensor:
+    from reconstruct.body.lbs import blend
+
+    return blend(m.skin_weights, T) @ m.canonical_inverse
+
+
+@pytest.mark.parametrize("make", [_skirt, _trousers], ids=["one tube", "two tubes"])
+def test_factors_against_a_float64_reference(body, make):
+    layer = make(body)
+    m = AvatarModel(body, _config(), layer=layer)
+    rng = np.random.default_rng(3)
+    logit = rng.normal(0, 0.7, tuple(m.layer_skin_logit.shape))
+    with torch.no_grad():
+        m.layer_skin_logit.copy_(torch.as_tensor(logit))
+    pose = _walk_pose(body, 2)
+    W, M = _reference(layer, body, logit, pose)
+    assert np.abs(W - layer.weights.double().numpy()).max() > 0.05  # the factors matter
+    with torch.no_grad():
+        got_w = m.layer_skin_weights().double().numpy()
+        T = body.bone_transforms(pose).float()
+        got = m.lbs_matrices(T).double().numpy()
+        sub = torch.tensor([0, 5, m.num_body, m.num_body + 7, m.num_gaussians - 1])
+        got_sub = m.lbs_matrices(T, sub)
+    np.testing.assert_allclose(got_w, W, atol=1e-6)
+    np.testing.assert_allclose(got[m.num_body:], M, atol=1e-4)
+    np.testing.assert_allclose(got_sub.double().numpy(), got[sub.numpy()], atol=1e-6)  # a subset: the same rows
+
+
+def test_gradient_against_finite_differences(body):
+    layer = _trousers(body)
+    m = AvatarModel(body, _config(), layer=layer).double()
+    with torch.no_grad():
+        m.layer_skin_logit.normal_(0, 0.3, generator=torch.Generator().manual_seed(4))
+    T = body.bone_transforms(_walk_pose(body, 5)).double()
+    x = m.base_positions[m.num_body:]
+    probe = torch.randn(len(x), 3, generator=torch.Generator().manual_seed(6), dtype=torch.float64)
+
+    def f() -> torch.Tensor:
+        M = m.lbs_matrices(T)[m.num_body:]
+        return ((M[:, :3, :3] @ x[..., None])[..., 0] + M[:, :3, 3]).mul(probe).sum()
+
+    m.layer_skin_logit.grad = None
+    f().backward()
+    grad = m.layer_skin_logit.grad.clone()
+    assert grad.abs().max() > 1e-3
+    eps = 1e-6
+    picks = torch.nonzero(grad.abs() > 1e-4)[::max(1, int((grad.abs() > 1e-4).sum()) // 12)][:12]
+    assert len(picks) >= 6
+    for r, b in picks.tolist():
+        with torch.no_grad():
+            m.layer_skin_logit[r, b] += eps
+            up = f().item()
+            m.layer_skin_logit[r, b] -= 2 * eps
+            down = f().item()
+            m.layer_skin_logit[r, b] += eps
+        fd = (up - down) / (2 * eps)
+        assert abs(fd - grad[r, b].item()) <= 1e-5 * max(1.0, abs(fd)), (r, b, fd, grad[r, b].item())
+
+
+def test_a_skinning_is_learned_back_from_posed_positions(body):
+    """Posed positions made with other factors (smooth down the skirt, like a hem that follows
+    the knees less) are fitted from zero factors: the residual falls far below the built weights'."""
+    layer = _skirt(body)
+    truth = AvatarModel(body, _config(), layer=layer)
+    m = AvatarModel(body, _config(), layer=layer)
+    rows = layer.grid_shape[0]
+    with torch.no_grad():
+        down = torch.linspace(0, 1, rows)[:, None]
+        truth.layer_skin_logit.copy_(1.5 * down * torch.randn(1, truth.layer_skin_logit.shape[1],
+                                                              generator=torch.Generator().manual_seed(7)))
+    poses = [body.bone_transforms(_walk_pose(body, s, 0.6)).float() for s in range(3)]
+    x = m.base_positions[m.num_body:]
+
+    def posed(model, T):
+        M = model.lbs_matrices(T)[model.num_body:]
+        return (M[:, :3, :3] @ x[..., None])[..., 0] + M[:, :3, 3]
+
+    with torch.no_grad():
+        target = [posed(truth, T) for T in poses]
+    err = lambda: float(sum((posed(m, T) - y).norm(dim=1).mean() for T, y in zip(poses, target)) / len(poses))
+    with torch.no_grad():
+        start = err()
+    assert start > 0.005  # the built weights miss the target by more than 5 mm on average
+    opt = torch.optim.Adam([m.layer_skin_logit], lr=0.05)
+    for _ in range(300):
+        opt.zero_grad()
+        loss = sum((posed(m, T) - y).square().sum(1).mean() for T, y in zip(poses, target))
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        assert err() < 0.1 * start
+
+
+def test_stage1_trains_it_only_when_asked_and_stage2_never(tiny_scene, tiny_config, body, tmp_path):
+    from reconstruct.stage2.config import Stage2Config
+    from reconstruct.stage2.plan import start_stage2
+    from reconstruct.train.checkpoint import load_checkpoint
+    from reconstruct.train.trainer import Trainer
+
+    fixed = Trainer(tiny_scene, tiny_config, garment_layer=_skirt(body))
+    assert "layer_skinning" not in {g["name"] for g in fixed.optimizer.param_groups}
+    assert "layer_skinning" not in fixed.plan.steps["given"](fixed).terms
+    fixed.step()
+    assert torch.equal(fixed.model.layer_skin_logit, torch.zeros_like(fixed.model.layer_skin_logit))
+
+    cfg = dataclasses.replace(tiny_config, lr_layer_skinning=0.05)
+    t = Trainer(tiny_scene, cfg, garment_layer=_skirt(body))
+    assert "layer_skinning" in {g["name"] for g in t.optimizer.param_groups}
+    assert "layer_skinning" in t.plan.steps["given"](t).terms
+    for _ in range(3):
+        assert not t.step().get("skipped")
+    learned = t.model.layer_skin_logit.detach().clone()
+    assert learned.abs().max() > 1e-3
+    # checkpoints carry it; a checkpoint saved before it existed loads as zero factors
+    path = t.save(tmp_path / "checkpoint.pt")
+    state = load_checkpoint(path)
+    t2 = Trainer(tiny_scene, cfg, garment_layer=_skirt(body))
+    t2.load_state_dict(state, str(path))
+    assert torch.equal(t2.model.layer_skin_logit, learned)
+    old = dict(state["avatar"]["model"])
+    del old["layer_skin_logit"]
+    t2.state.load_state_dict({**state["avatar"], "model": old})
+    assert torch.equal(t2.model.layer_skin_logit, torch.zeros_like(learned))
+    # Stage II keeps what Stage I learned
+    plan = start_stage2(t, Stage2Config(iters=4, num_azimuths=8, prior_size=48), allow_incomplete=True)
+    assert plan is not None
+    assert "layer_skinning" not in {g["name"] for g in t.optimizer.param_groups}
+    t.step()
+    assert torch.equal(t.model.layer_skin_logit.detach(), learned)
