@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from reconstruct.avatar import AvatarConfig, AvatarModel
-from reconstruct.avatar.garment_layer import (VolumeHint, _interp_rows, build_garment_layer, landmark_heights,
+from reconstruct.avatar.garment_layer import (VolumeHint, interpolation_matrix, build_garment_layer, landmark_heights,
                                               row_heights)
 from reconstruct.avatar.gaussian_sets import PosedGaussians
 from reconstruct.camera import Camera
@@ -40,10 +40,10 @@ def test_row_heights_coarse_then_fine_to_the_bottom():
     assert np.array_equal(row_heights(0.0, -0.04, 0.02, hem_band=0.03), np.linspace(0.0, -0.04, 4))
 
 
-def test_interp_rows_matches_np_interp():
+def test_interpolation_matrix_matches_np_interp():
     src = np.array([0.3, 0.1, 0.05, 0.0, -0.02, -0.025])
     dst = np.array([0.35, 0.3, 0.2, 0.07, 0.0, -0.021, -0.03])
-    A = _interp_rows(src, dst)
+    A = interpolation_matrix(src, dst)
     rng = np.random.default_rng(0)
     f = rng.normal(size=len(src))
     want = np.interp(-dst, -src, f)  # increasing abscissae; clamped at the ends like A
@@ -66,7 +66,7 @@ def test_hem_rows_keep_the_weights_of_an_even_grid(body):
     assert float(zf[-1]) == pytest.approx(hint.hem_z - 0.01, abs=1e-6)  # the margin below the hint's hem
     assert float(ze[-1]) == pytest.approx(hint.hem_z - 0.01, abs=1e-6)
     Wf, We = fine.weights.reshape(Rf, C, -1), even.weights.reshape(Re, C, -1)
-    at_fine = torch.einsum("fe,ecj->fcj", torch.as_tensor(_interp_rows(ze.numpy(), zf.numpy())), We.double())
+    at_fine = torch.einsum("fe,ecj->fcj", torch.as_tensor(interpolation_matrix(ze.numpy(), zf.numpy())), We.double())
     gap = float((at_fine - Wf.double()).abs().max())
     assert gap < 0.08, gap
     # diffused over the fine rows as if they were 2 cm apart, the hem's weights would differ more

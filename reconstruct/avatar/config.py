@@ -56,6 +56,10 @@ class AvatarConfig:
     # metres between the layer's rows; its columns are spaced alike round the hips (92 at 1.4 cm):
     # rows every 2 cm (64 columns) could not carry a 4 cm check round to the unseen side
     garment_layer_step: float = GARMENT_LAYER_STEP
+    # metres between the heights at which the layer's learned skinning has its own factors
+    # (AvatarModel.layer_skin_weights; the rows between interpolate): one factor per row let the
+    # hem rows, 5 mm apart, follow other bones than the row above and tear 5 cm off in the walk
+    garment_skin_knot_step: float = 0.04
 
     @classmethod
     def paper(cls, **kw) -> "AvatarConfig":
@@ -91,6 +95,9 @@ class AvatarConfig:
         if not 0 < self.garment_opacity_init < 1 or not self.garment_opacity_gain > 0:
             raise ValueError(f"AvatarConfig: need 0 < garment_opacity_init < 1 and garment_opacity_gain > 0, found "
                              f"{self.garment_opacity_init} and {self.garment_opacity_gain}")
+        if not 0.01 <= self.garment_skin_knot_step <= 1.0:
+            raise ValueError(f"AvatarConfig.garment_skin_knot_step must be in [0.01, 1] metres, found "
+                             f"{self.garment_skin_knot_step}")
         if not 0.005 <= self.garment_layer_step <= 0.1:
             raise ValueError(f"AvatarConfig.garment_layer_step must be in [0.005, 0.1] metres, found "
                              f"{self.garment_layer_step}")

@@ -308,7 +308,7 @@ def row_heights(top_z: float, bottom_z: float, row_step: float, hem_band: float 
     return zs
 
 
-def _interp_rows(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+def interpolation_matrix(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """(len(dst), len(src)) the matrix of linear interpolation from rows at heights ``src`` to
     heights ``dst`` (both decreasing; clamped at the ends): ``np.interp`` of each unit vector."""
     x, z = -np.asarray(src, float), -np.asarray(dst, float)  # increasing, as np.interp wants
@@ -376,10 +376,10 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None =
     zu = np.linspace(zs[0], zs[-1], max(2, int(round((zs[0] - zs[-1]) / row_step)) + 1))
     uniform = len(zu) == rows and np.allclose(zu, zs)
     if not uniform:
-        W = np.einsum("ur,rtcj->utcj", _interp_rows(zs, zu), W)
+        W = np.einsum("ur,rtcj->utcj", interpolation_matrix(zs, zu), W)
     W = gaussian_filter(W, (diffusion[0], 0, diffusion[1], 0), mode=("nearest", "nearest", "wrap", "nearest"))
     if not uniform:
-        W = np.einsum("ru,utcj->rtcj", _interp_rows(zu, zs), W)
+        W = np.einsum("ru,utcj->rtcj", interpolation_matrix(zu, zs), W)
     W = np.clip(W, 0, None).reshape(rows, tubes * cols, -1)
     W /= W.sum(-1, keepdims=True)
     n = rows * tubes * cols

@@ -52,7 +52,7 @@ from ..body.lbs import apply_normals, apply_points, blend, safe_normalize
 from ..body.uv_map import UVMap, build_uv_map, texel_frames, texel_neighbours, texel_spacing
 from .config import AvatarConfig
 from .decoder import GaussianDecoder
-from .garment_layer import GARMENT_PART, GarmentLayer
+from .garment_layer import GARMENT_PART, GarmentLayer, interpolation_matrix
 from .gaussian_sets import CanonicalGaussians, PosedGaussians, frame_quaternions
 from .pose_encoder import PoseEncoder
 
@@ -157,15 +157,20 @@ class AvatarModel(nn.Module):
             p = layer.positions.float()
             self.register_buffer("layer_edges", edges + self.num_body, persistent=False)  # (E,2) Gaussian ids
             self.register_buffer("layer_rest", (p[edges[:, 0]] - p[edges[:, 1]]).norm(dim=1), persistent=False)
-            # learned skinning (see layer_skin_weights): one log-factor per bone the layer follows,
-            # per row of each tube, zero = the layer's built weights
+            # learned skinning (see layer_skin_weights): log-factors per bone the layer follows, per
+            # tube, at knots down the layer every garment_skin_knot_step (rows interpolate them);
+            # zero = the layer's built weights
             support = torch.nonzero(layer.weights.amax(0) > LAYER_SKIN_SUPPORT)[:, 0]
-            tube_cols = cols // layer.tubes
+            row_z = layer.positions[::cols, 2].double().numpy()  # each row is at one canonical height
+            knots = np.linspace(row_z[0], row_z[-1], max(2, int(np.ceil(
+                (row_z[0] - row_z[-1]) / config.garment_skin_knot_step - 1e-9)) + 1))
             self.register_buffer("layer_skin_support", support, persistent=False)  # (S,) bone ids
-            self.register_buffer("layer_skin_group", rc[:, 0] * layer.tubes + rc[:, 1] // tube_cols,
+            self.register_buffer("layer_skin_rows", torch.as_tensor(interpolation_matrix(knots, row_z),
+                                                                     dtype=torch.float32), persistent=False)  # (R,K)
+            self.register_buffer("layer_skin_cell", rc[:, 0] * layer.tubes + rc[:, 1] // (cols // layer.tubes),
                                  persistent=False)  # (M,) the (row, tube) of each layer Gaussian
             self.register_buffer("canonical_transforms", body.canonical_transforms.float(), persistent=False)
-            self.layer_skin_logit = nn.Parameter(torch.zeros(rows * layer.tubes, len(support)))
+            self.layer_skin_logit = nn.Parameter(torch.zeros(len(knots), layer.tubes, len(support)))
 
     @property
     def num_gaussians(self) -> int:
@@ -326,22 +331,24 @@ class AvatarModel(nn.Module):
     def layer_skin_weights(self) -> torch.Tensor:
         """(M,J) the garment layer's skinning weights as trained: its built weights (the body's,
         carried out and diffused over the layer's grid) with each bone of their support scaled by
-        ``exp(layer_skin_logit)`` of the Gaussian's row and tube, then normalised. One factor per
-        row and bone, shared round the tube, so that what the views teach the front (how far the
-        hem follows the knees rather than the hips) holds behind too, where no view reaches."""
+        ``exp(logit)``, then normalised; ``logit`` is ``layer_skin_logit`` (knots x tubes x bones)
+        interpolated linearly in height to the Gaussian's row. One factor per height and bone,
+        shared round the tube, so that what the views teach the front (how far the hem follows the
+        knees rather than the hips) holds behind too, where no view reaches; the knots
+        (``AvatarConfig.garment_skin_knot_step`` apart) keep neighbouring rows together."""
         w = self.skin_weights[self.num_body:]
-        scaled = w[:, self.layer_skin_support] * self.layer_skin_logit.exp()[self.layer_skin_group]
+        K, tubes, S = self.layer_skin_logit.shape
+        per_row = (self.layer_skin_rows @ self.layer_skin_logit.reshape(K, -1)).reshape(-1, S)  # (R*tubes, S)
+        scaled = w[:, self.layer_skin_support] * per_row.exp()[self.layer_skin_cell]
         w = w.index_copy(1, self.layer_skin_support, scaled)
         return w / w.sum(1, keepdim=True)
 
     def layer_skinning_prior(self) -> torch.Tensor:
         """Mean squared log-factor of the layer's learned skinning plus the mean squared change
-        between a tube's neighbouring rows: the weights stay near the built ones and change
-        smoothly down the cloth."""
+        between neighbouring knots: the weights stay near the built ones and change smoothly down
+        the cloth."""
         logit = self.layer_skin_logit
-        tubes = self.layer.tubes
-        by_row = logit.reshape(-1, tubes, logit.shape[1])
-        return logit.square().mean() + (by_row[1:] - by_row[:-1]).square().mean()
+        return logit.square().mean() + (logit[1:] - logit[:-1]).square().mean()
 
     def lbs_matrices(self, pose_transforms: torch.Tensor, index: torch.Tensor | None = None) -> torch.Tensor:
         """Per-Gaussian canonical -> observation matrices (N,4,4) for bone transforms (J,4,4) (of
