@@ -354,15 +354,26 @@ class AvatarModel(nn.Module):
         """Per-Gaussian canonical -> observation matrices (N,4,4) for bone transforms (J,4,4) (of
         the Gaussians ``index`` when given). The garment layer's use its learned weights
         (``layer_skin_weights``), and their canonical inverse from those."""
+        T = pose_transforms.to(self.skin_weights)
+        if self.layer is None:
+            w = self.skin_weights if index is None else self.skin_weights[index]
+            inv = self.canonical_inverse if index is None else self.canonical_inverse[index]
+            return blend(w, T) @ inv
+        # the body's rows from the fixed buffers, the layer's from its learned weights (only these
+        # carry a gradient to layer_skin_logit)
+        nb = self.num_body
         if index is None:
-            index = torch.arange(self.num_gaussians, device=self.skin_weights.device)
-        w, inv = self.skin_weights[index], self.canonical_inverse[index]
-        if self.layer is not None:
-            at = torch.nonzero(index >= self.num_body)[:, 0]
-            wl = self.layer_skin_weights()[index[at] - self.num_body]
-            w = w.index_put((at,), wl)
-            inv = inv.index_put((at,), torch.linalg.inv(blend(wl, self.canonical_transforms.to(wl))))
-        return blend(w, pose_transforms.to(w)) @ inv
+            body, layer = slice(None, nb), slice(None)
+        else:
+            body, layer = index[index < nb], index[index >= nb] - nb
+        wl = self.layer_skin_weights()[layer]
+        M_layer = blend(wl, T) @ torch.linalg.inv(blend(wl, self.canonical_transforms.to(wl)))
+        M_body = blend(self.skin_weights[body], T) @ self.canonical_inverse[body]
+        if index is None:
+            return torch.cat([M_body, M_layer])
+        M = torch.empty(len(index), 4, 4, dtype=T.dtype, device=T.device)
+        M = M.index_put((torch.nonzero(index < nb)[:, 0],), M_body)
+        return M.index_put((torch.nonzero(index >= nb)[:, 0],), M_layer)
 
     def facing(self, matrices: torch.Tensor, camera_center, cos_margin: float = 0.25) -> torch.Tensor:
         """Indices of the Gaussians whose posed body-surface normal (LBS ``matrices`` of all the
