@@ -181,7 +181,13 @@ def test_stage1_trains_it_only_when_asked_and_stage2_never(tiny_scene, tiny_conf
     from reconstruct.train.checkpoint import load_checkpoint
     from reconstruct.train.trainer import Trainer
 
-    fixed = Trainer(tiny_scene, tiny_config, garment_layer=_skirt(body))
+    from reconstruct.train.config import Stage1Config
+
+    assert Stage1Config().lr_layer_skinning == 0.01  # the default trains it
+    record = Stage1Config().to_dict()
+    del record["lr_layer_skinning"]
+    assert Stage1Config.from_dict(record).lr_layer_skinning == 0.0  # a run recorded before it: the built weights
+    fixed = Trainer(tiny_scene, dataclasses.replace(tiny_config, lr_layer_skinning=0.0), garment_layer=_skirt(body))
     assert "layer_skinning" not in {g["name"] for g in fixed.optimizer.param_groups}
     assert "layer_skinning" not in fixed.plan.steps["given"](fixed).terms
     fixed.step()

@@ -73,7 +73,7 @@ class Stage1Config(StageSettings):
     # the garment layer's learned skinning (AvatarModel.layer_skin_weights: a log-factor per row of
     # each tube and bone): its Adam rate (0 = keep the built weights) and the weight of its prior
     # (AvatarModel.layer_skinning_prior: near the built weights, smooth down the cloth). Stage I only
-    lr_layer_skinning: float = 0.0
+    lr_layer_skinning: float = 0.01
     lambda_layer_skinning: float = 1e-3
     # learning-rate decay over the budget (steps or minutes, whichever ends first): constant until
     # lr_decay_start of the stage, then geometric down to lr_final x at its end. GaussianAvatar's
@@ -162,6 +162,7 @@ class Stage1Config(StageSettings):
         d.setdefault("fill_unseen", False)  # recorded before Stage I filled its unseen side
         d.setdefault("random_background", False)  # recorded before training on random backgrounds
         d.setdefault("seen_on_person", False)  # recorded before the seen flags were recounted on the person
+        d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed
         if isinstance(d.get("avatar"), dict) and "garment_layer" not in d["avatar"]:
