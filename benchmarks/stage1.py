@@ -16,8 +16,8 @@ change of load on a shared machine hits both.
 The ``loose-*`` configurations train the wide-trousers scene (``clothing=wide_trousers``) with the
 current defaults: without the garment layer (``loose-off``), with its rows every 2 cm (the
 layer before, ``loose-2cm``) and every 1.4 cm (the default, ``loose-1.4cm``); what the layer
-adds is its Gaussians, the alpha-against-mask loss and the spacing regulariser over its grid
-edges (all in the pieces above, as in ``GivenViewStep``):
+adds is its Gaussians, the alpha-against-mask loss, the spacing regulariser over its grid edges
+and its learned skinning with that prior (all in the pieces above, as in ``GivenViewStep``):
     python benchmarks/stage1.py --configs loose-off,loose-2cm,loose-1.4cm --rounds 2
 """
 
@@ -106,6 +106,8 @@ def child(cfg: dict) -> dict:
                 edges, rest = model.layer_edge_rows(idx)
                 loss = loss + c.lambda_alpha * L.mse(r.alpha, tgt.mask) + c.lambda_layer_spacing * neighbour_strain(
                     canon.means, edges, rest)
+                if c.lr_layer_skinning > 0:
+                    loss = loss + c.lambda_layer_skinning * model.layer_skinning_prior()
             return loss
 
         loss = timed("losses", loss_fn)

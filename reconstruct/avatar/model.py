@@ -365,15 +365,15 @@ class AvatarModel(nn.Module):
         if index is None:
             body, layer = slice(None, nb), slice(None)
         else:
-            body, layer = index[index < nb], index[index >= nb] - nb
+            on_layer = index >= nb
+            body, layer = index[~on_layer], index[on_layer] - nb
         wl = self.layer_skin_weights()[layer]
         M_layer = blend(wl, T) @ torch.linalg.inv(blend(wl, self.canonical_transforms.to(wl)))
         M_body = blend(self.skin_weights[body], T) @ self.canonical_inverse[body]
         if index is None:
             return torch.cat([M_body, M_layer])
         M = torch.empty(len(index), 4, 4, dtype=T.dtype, device=T.device)
-        M = M.index_put((torch.nonzero(index < nb)[:, 0],), M_body)
-        return M.index_put((torch.nonzero(index >= nb)[:, 0],), M_layer)
+        return M.index_put((~on_layer,), M_body).index_put((on_layer,), M_layer)
 
     def facing(self, matrices: torch.Tensor, camera_center, cos_margin: float = 0.25) -> torch.Tensor:
         """Indices of the Gaussians whose posed body-surface normal (LBS ``matrices`` of all the

@@ -70,9 +70,9 @@ class Stage1Config(StageSettings):
     # shows as translucent cloth and as cloth painted on the legs once they move; the alpha loss
     # still fades the layer where the silhouette shows nothing
     lambda_layer_opaque: float = 0.0
-    # the garment layer's learned skinning (AvatarModel.layer_skin_weights: a log-factor per row of
-    # each tube and bone): its Adam rate (0 = keep the built weights) and the weight of its prior
-    # (AvatarModel.layer_skinning_prior: near the built weights, smooth down the cloth). Stage I only
+    # the garment layer's learned skinning (AvatarModel.layer_skin_weights: log-factors per tube and
+    # bone at knots down the layer): its Adam rate (0 = keep the built weights) and the weight of its
+    # prior (AvatarModel.layer_skinning_prior: near the built weights, smooth down the cloth). Stage I only
     lr_layer_skinning: float = 0.01
     lambda_layer_skinning: float = 1e-3
     # learning-rate decay over the budget (steps or minutes, whichever ends first): constant until
