@@ -113,7 +113,8 @@ def _stage2_overrides(args) -> dict:
 def _cmd_eval(args) -> int:
     from app.train_cmd import evaluate
 
-    return evaluate(args.run, as_json=args.json, scale=args.scale)
+    return evaluate(args.run, as_json=args.json, scale=args.scale, novel=args.novel,
+                    novel_frames=args.novel_frames)
 
 
 def _export_what(args) -> str:
@@ -327,6 +328,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scale", type=int, default=1,
                    help="render every view at this multiple of the scene's resolution (holes show at zoom); "
                         "adds hole fraction and alpha IoU at that scale")
+    s.add_argument("--novel", metavar="NAME", choices=("walk", "arms_up"), default=None,
+                   help="also score coverage in a novel pose sequence (walk or arms_up) against the ground truth "
+                        "of a synthetic scene: holes and alpha IoU from the front, both sides and the back")
+    s.add_argument("--novel-frames", type=int, default=8, help="poses of the --novel sequence (default 8)")
     s.set_defaults(func=_cmd_eval)
 
     s = sub.add_parser("export", help="render a trained avatar as a video (.mp4/.gif: 360° orbit, a scene's poses, a "

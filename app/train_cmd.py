@@ -121,22 +121,35 @@ def train_stage2(run_dir: Path, stage2_overrides: dict | None = None, *, allow_i
     return trainer
 
 
-def evaluate(run_dir: Path, *, as_json: bool, scale: int = 1) -> int:
+def evaluate(run_dir: Path, *, as_json: bool, scale: int = 1, novel: str | None = None, novel_frames: int = 8) -> int:
     """Seen / unseen metrics of a run on its scene's held-out views, rendered at ``scale`` x the
-    scene's resolution (coverage: hole fraction and alpha IoU at that scale)."""
+    scene's resolution (coverage: hole fraction and alpha IoU at that scale). ``novel``: also the
+    coverage in that novel pose sequence (``novel_frames`` poses) against the ground truth of a
+    synthetic scene (``reconstruct.train.novel_coverage``)."""
     import torch
 
     from reconstruct.train.evaluate import evaluate_views
     from reconstruct.train.report import plot_error_vs_time
 
+    if novel is not None and novel_frames < 2:
+        raise ValueError(f"--novel-frames must be at least 2, found {novel_frames}")
     run = RunFolder(run_dir)
     info = run.check("evaluate")
     trainer = run.resume()
+    novel_result = None
+    if novel is not None:
+        from reconstruct.train.novel_coverage import novel_coverage, novel_views
+
+        views = novel_views(trainer.scene, trainer.state.body, novel, novel_frames)
+        novel_rows, novel_summary = novel_coverage(trainer.state, views, trainer.background, scale=scale)
+        novel_result = {"sequence": novel, "frames": novel_frames, **novel_summary, "views": novel_rows}
     with torch.no_grad():
         rows, summary = evaluate_views(trainer.state, trainer.scene, trainer.background, lpips=trainer.lpips,
                                        scale=scale)
     result = {"run": str(run_dir), "scene": info["scene"], "step": trainer.step_count, "scale": scale, **summary,
               "views": rows}
+    if novel_result is not None:
+        result["novel"] = novel_result
     if trainer.lpips_note:
         result["note"] = trainer.lpips_note
     if as_json:
@@ -147,6 +160,14 @@ def evaluate(run_dir: Path, *, as_json: bool, scale: int = 1) -> int:
             print(f"{r['view']:<14} frame {r['frame']:>3} {'seen' if r['seen'] else 'unseen':<7} "
                   f"PSNR {r['psnr']:6.2f}  SSIM {r['ssim']:.4f}  alpha IoU {r['alpha_iou']:.4f}{holes}")
         print(" ".join(f"{k}={v:.4f}" for k, v in summary.items() if v is not None))
+        if novel_result is not None:
+            for r in novel_result["views"]:
+                garment = ("" if r["garment_hole_fraction"] is None
+                           else f"  garment holes {100 * r['garment_hole_fraction']:5.2f}%")
+                print(f"{novel} {r['index']:>3} azimuth {r['azimuth_deg']:5.1f}  alpha IoU {r['alpha_iou']:.4f}  "
+                      f"holes {100 * r['hole_fraction']:5.2f}%{garment}")
+            print(" ".join(f"{k}={v:.4f}" for k, v in novel_result.items()
+                           if isinstance(v, float)))
     try:
         print(f"wrote {plot_error_vs_time(run_dir)}", file=sys.stderr)
     except ValueError as exc:

@@ -234,6 +234,48 @@ def render_scene_views(scene: Scene, texture: np.ndarray, views, *, supersample:
         mesh.release()
 
 
+def render_truth_masks(scene: Scene, poses, cameras, *, outfit=None) -> tuple[list[np.ndarray], list[np.ndarray] | None]:
+    """Ground-truth coverage of a synthetic scene's person in any ``poses`` (BodyPose of the scene's
+    body), each seen by the camera of the same index in ``cameras``, rendered as the scene's own
+    masks are (its supersampling; not quantised): (H,W) float32 masks of the whole person, and --
+    in a loose-clothing scene -- of the garment alone (its whole silhouette, also where the body is
+    in front of it; None in a tight scene). ``outfit``: the scene's LooseOutfit when the caller has
+    it; else rebuilt from the scene's configuration."""
+    from renderer.gl_context import shared_offscreen_context
+
+    if scene.meta.get("source") != "synthetic" or "config" not in scene.meta:
+        raise ValueError(f"scene {scene.name!r} is not a synthetic scene: its ground truth cannot be rendered in "
+                         "new poses (only `synthetic:` scenes have it)")
+    if len(poses) != len(cameras):
+        raise ValueError(f"render_truth_masks: {len(poses)} poses but {len(cameras)} cameras")
+    config = SyntheticConfig(**scene.meta["config"])
+    outfit = outfit if outfit is not None else loose_outfit_of(scene)
+    body = outfit.body if outfit is not None else scene.body_model()
+    ctx = shared_offscreen_context()
+    blank = np.zeros((8, 8, 3), np.uint8)
+    if outfit is not None:
+        whole = outfit.renderer(ctx, supersample=config.supersample)
+        garment = outfit.renderer(ctx, supersample=config.supersample, garment_only=True)
+    else:
+        whole, garment = _mesh_renderer(body, blank, config.supersample), None
+    try:
+        masks, garment_masks = [], ([] if garment is not None else None)
+        for pose, camera in zip(poses, cameras):
+            if outfit is not None:
+                verts, normals = outfit.posed(pose)
+            else:
+                v = body.posed_vertices(pose)
+                verts, normals = v.numpy(), vertex_normals(v, body.faces).numpy()
+            masks.append(whole.render(verts, normals, camera).mask.astype(np.float32))
+            if garment is not None:
+                garment_masks.append(garment.render(verts, normals, camera).mask.astype(np.float32))
+        return masks, garment_masks
+    finally:
+        whole.release()
+        if garment is not None:
+            garment.release()
+
+
 def add_front_leak(scene: Scene, painted: PaintedClothing, config: SyntheticConfig, outfit=None) -> None:
     """Give every unseen evaluation view of ``scene`` its front-leak information: the image regions
     where the front-only details would land on the back (the leak atlas rendered unlit in the view's
