@@ -18,9 +18,9 @@ from reconstruct.avatar.model import LAYER_SKIN_SUPPORT
 from reconstruct.body.pose import BodyPose
 
 
-def _config() -> AvatarConfig:
+def _config(**kw) -> AvatarConfig:
     return AvatarConfig(gaussian_resolution=48, feature_resolution=32, feature_channels=8, pose_feature_channels=8,
-                        hidden=32)
+                        hidden=32, **kw)
 
 
 @pytest.fixture(scope="module")
@@ -46,20 +46,29 @@ def _walk_pose(body, seed: int, amount: float = 0.5) -> BodyPose:
     return BodyPose(rot, np.zeros(3), np.zeros(3))
 
 
-def _reference(layer, body, logit: np.ndarray, pose: BodyPose) -> tuple[np.ndarray, np.ndarray]:
-    """Float64 NumPy: the trained weights and the layer's LBS matrices. ``logit`` (K, tubes, S) at
-    K knots spaced evenly from the top row's height to the last row's, interpolated with np.interp
-    to each Gaussian's canonical height; Gaussian k is at column k % C, tube = column // (C / tubes)."""
+def _reference(layer, body, logit: np.ndarray, pose: BodyPose, sectors: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Float64 NumPy: the trained weights and the layer's LBS matrices. ``logit`` (K, tubes *
+    sectors, S) at K knots spaced evenly from the top row's height to the last row's, interpolated
+    with np.interp to each Gaussian's canonical height, then round the tube: Gaussian k is at
+    column k % C, tube = column // (C / tubes), at angle a = (column within the tube) / (C / tubes)
+    of a turn; sector p's factors hold at a = p / sectors, linear between (wrapping round)."""
     W0 = layer.weights.double().numpy()
     support = np.flatnonzero(W0.max(0) > LAYER_SKIN_SUPPORT)
     rows, C = layer.grid_shape
+    Ct = C // layer.tubes
     z = layer.positions.double().numpy()[:, 2]
     knots = np.linspace(z.max(), z.min(), logit.shape[0])
-    tube = (np.arange(len(W0)) % C) // (C // layer.tubes)
-    per = np.stack([np.stack([np.interp(-z, -knots, logit[:, t, b]) for b in range(logit.shape[2])], 1)
-                    for t in range(layer.tubes)], 1)  # (M, tubes, S)
+    col = np.arange(len(W0)) % C
+    tube, a = col // Ct, (col % Ct) / Ct
+    per = np.zeros((len(W0), len(support)))
+    for k in range(len(W0)):
+        t = a[k] * sectors
+        p0 = int(np.floor(t))
+        for p, share in ((p0 % sectors, 1 - (t - p0)), ((p0 + 1) % sectors, t - p0)):
+            cell = tube[k] * sectors + p
+            per[k] += share * np.array([np.interp(-z[k], -knots, logit[:, cell, b]) for b in range(len(support))])
     W = W0.copy()
-    W[:, support] *= np.exp(per[np.arange(len(W0)), tube])
+    W[:, support] *= np.exp(per)
     W /= W.sum(1, keepdims=True)
     T = body.bone_transforms(pose).double().numpy()
     Cn = body.canonical_transforms.double().numpy()
@@ -89,16 +98,18 @@ def blend_formula(m: AvatarModel, T: torch.Tensor) -> torch.Tensor:
     return blend(m.skin_weights, T) @ m.canonical_inverse
 
 
-@pytest.mark.parametrize("make", [_skirt, _trousers], ids=["one tube", "two tubes"])
-def test_factors_against_a_float64_reference(body, make):
+@pytest.mark.parametrize("make,sectors", [(_skirt, 1), (_trousers, 1), (_skirt, 5), (_trousers, 3)],
+                         ids=["one tube", "two tubes", "one tube, 5 sectors", "two tubes, 3 sectors"])
+def test_factors_against_a_float64_reference(body, make, sectors):
     layer = make(body)
-    m = AvatarModel(body, _config(), layer=layer)
+    m = AvatarModel(body, _config(garment_skin_sectors=sectors), layer=layer)
+    assert m.layer_skin_logit.shape[1] == layer.tubes * sectors
     rng = np.random.default_rng(3)
     logit = rng.normal(0, 0.7, tuple(m.layer_skin_logit.shape))
     with torch.no_grad():
         m.layer_skin_logit.copy_(torch.as_tensor(logit))
     pose = _walk_pose(body, 2)
-    W, M = _reference(layer, body, logit, pose)
+    W, M = _reference(layer, body, logit, pose, sectors)
     assert np.abs(W - layer.weights.double().numpy()).max() > 0.05  # the factors matter
     with torch.no_grad():
         got_w = m.layer_skin_weights().double().numpy()
@@ -111,9 +122,10 @@ def test_factors_against_a_float64_reference(body, make):
     np.testing.assert_allclose(got_sub.double().numpy(), got[sub.numpy()], atol=1e-6)  # a subset: the same rows
 
 
-def test_gradient_against_finite_differences(body):
+@pytest.mark.parametrize("sectors", [1, 3])
+def test_gradient_against_finite_differences(body, sectors):
     layer = _trousers(body)
-    m = AvatarModel(body, _config(), layer=layer).double()
+    m = AvatarModel(body, _config(garment_skin_sectors=sectors), layer=layer).double()
     with torch.no_grad():
         m.layer_skin_logit.normal_(0, 0.3, generator=torch.Generator().manual_seed(4))
     T = body.bone_transforms(_walk_pose(body, 5)).double()
@@ -238,3 +250,29 @@ def test_hem_rows_stay_together_whatever_the_factors(body):
     # measured: built 1.02, knots 4 cm apart 1.79; with knots 1 cm apart (the hem rows' factors
     # nearly free) 4.17
     assert built < 1.1 and trained < 2.5, (built, trained)
+
+
+def test_prior_with_sectors_against_its_formula(body):
+    """The prior: mean square + mean squared change between knots + (sectors) between
+    neighbouring sectors round each tube, wrapping round; a factor the same all round the tube
+    pays nothing for the sectors."""
+    layer = _trousers(body)
+    m = AvatarModel(body, _config(garment_skin_sectors=4), layer=layer)
+    K, cells, S = m.layer_skin_logit.shape
+    rng = np.random.default_rng(9)
+    logit = rng.normal(0, 0.5, (K, cells, S))
+    with torch.no_grad():
+        m.layer_skin_logit.copy_(torch.as_tensor(logit))
+    ring = logit.reshape(K, layer.tubes, 4, S)
+    want = (np.mean(logit ** 2) + np.mean((logit[1:] - logit[:-1]) ** 2)
+            + np.mean((ring - np.roll(ring, 1, axis=2)) ** 2))
+    assert abs(m.layer_skinning_prior().item() - want) < 1e-5 * want
+    same = np.repeat(rng.normal(0, 0.5, (K, layer.tubes, 1, S)), 4, axis=2).reshape(K, cells, S)
+    with torch.no_grad():
+        m.layer_skin_logit.copy_(torch.as_tensor(same))
+    plain = np.mean(same ** 2) + np.mean((same[1:] - same[:-1]) ** 2)
+    assert abs(m.layer_skinning_prior().item() - plain) < 1e-5 * plain
+    with pytest.raises(ValueError, match="garment_skin_sectors"):
+        AvatarConfig(garment_skin_sectors=0)
+    with pytest.raises(ValueError, match="exceeds the garment layer's 8 columns per tube"):
+        AvatarModel(body, _config(garment_skin_sectors=9), layer=layer)

@@ -60,6 +60,9 @@ class AvatarConfig:
     # (AvatarModel.layer_skin_weights; the rows between interpolate): one factor per row let the
     # hem rows, 5 mm apart, follow other bones than the row above and tear 5 cm off in the walk
     garment_skin_knot_step: float = 0.04
+    # sectors round each tube at which the learned skinning has its own factors (interpolated
+    # round the tube between them); 1: shared round the tube
+    garment_skin_sectors: int = 1
 
     @classmethod
     def paper(cls, **kw) -> "AvatarConfig":
@@ -98,6 +101,9 @@ class AvatarConfig:
         if not 0.01 <= self.garment_skin_knot_step <= 1.0:
             raise ValueError(f"AvatarConfig.garment_skin_knot_step must be in [0.01, 1] metres, found "
                              f"{self.garment_skin_knot_step}")
+        if not (isinstance(self.garment_skin_sectors, int) and 1 <= self.garment_skin_sectors <= 64):
+            raise ValueError(f"AvatarConfig.garment_skin_sectors must be an integer in [1, 64], found "
+                             f"{self.garment_skin_sectors!r}")
         if not 0.005 <= self.garment_layer_step <= 0.1:
             raise ValueError(f"AvatarConfig.garment_layer_step must be in [0.005, 0.1] metres, found "
                              f"{self.garment_layer_step}")

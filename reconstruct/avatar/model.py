@@ -167,10 +167,22 @@ class AvatarModel(nn.Module):
             self.register_buffer("layer_skin_support", support, persistent=False)  # (S,) bone ids
             self.register_buffer("layer_skin_rows", torch.as_tensor(interpolation_matrix(knots, row_z),
                                                                      dtype=torch.float32), persistent=False)  # (R,K)
-            self.register_buffer("layer_skin_cell", rc[:, 0] * layer.tubes + rc[:, 1] // (cols // layer.tubes),
-                                 persistent=False)  # (M,) the (row, tube) of each layer Gaussian
+            # and round each tube at garment_skin_sectors sector centres (columns interpolate the two
+            # nearest, wrapping round): each Gaussian mixes two (row, tube, sector) cells
+            sectors, per_tube = config.garment_skin_sectors, cols // layer.tubes
+            if sectors > per_tube:
+                raise ValueError(f"AvatarConfig.garment_skin_sectors ({sectors}) exceeds the garment layer's "
+                                 f"{per_tube} columns per tube")
+            theta = (rc[:, 1] % per_tube).double() * sectors / per_tube  # in sector units
+            p0 = theta.floor().long()
+            frac = (theta - p0).float() if sectors > 1 else torch.zeros(len(rc))  # one sector: one cell
+            first = rc[:, 0] * (layer.tubes * sectors) + (rc[:, 1] // per_tube) * sectors
+            self.register_buffer("layer_skin_cells", torch.stack([first + p0 % sectors, first + (p0 + 1) % sectors], 1),
+                                 persistent=False)  # (M,2) the two (row, tube, sector) cells of each Gaussian
+            self.register_buffer("layer_skin_mix", torch.stack([1 - frac, frac], 1), persistent=False)  # (M,2)
             self.register_buffer("canonical_transforms", body.canonical_transforms.float(), persistent=False)
-            self.layer_skin_logit = nn.Parameter(torch.zeros(len(knots), layer.tubes, len(support)))
+            self.layer_skin_sectors = sectors
+            self.layer_skin_logit = nn.Parameter(torch.zeros(len(knots), layer.tubes * sectors, len(support)))
 
     @property
     def num_gaussians(self) -> int:
@@ -331,24 +343,34 @@ class AvatarModel(nn.Module):
     def layer_skin_weights(self) -> torch.Tensor:
         """(M,J) the garment layer's skinning weights as trained: its built weights (the body's,
         carried out and diffused over the layer's grid) with each bone of their support scaled by
-        ``exp(logit)``, then normalised; ``logit`` is ``layer_skin_logit`` (knots x tubes x bones)
-        interpolated linearly in height to the Gaussian's row. One factor per height and bone,
-        shared round the tube, so that what the views teach the front (how far the hem follows the
-        knees rather than the hips) holds behind too, where no view reaches; the knots
+        ``exp(logit)``, then normalised; ``logit`` is ``layer_skin_logit`` (knots x tubes *
+        sectors x bones) interpolated linearly in height to the Gaussian's row and, with more than
+        one sector (``AvatarConfig.garment_skin_sectors``), linearly round the tube between the
+        two nearest sector centres. With one sector a factor per height and bone is shared round
+        the tube, so that what the views teach the front (how far the hem follows the knees rather
+        than the hips) holds behind too, where no view reaches; sectors let the front and the
+        back differ (an open coat's panels each follow their own thigh). The knots
         (``AvatarConfig.garment_skin_knot_step`` apart) keep neighbouring rows together."""
         w = self.skin_weights[self.num_body:]
-        K, tubes, S = self.layer_skin_logit.shape
-        per_row = (self.layer_skin_rows @ self.layer_skin_logit.reshape(K, -1)).reshape(-1, S)  # (R*tubes, S)
-        scaled = w[:, self.layer_skin_support] * per_row.exp()[self.layer_skin_cell]
+        K, cells, S = self.layer_skin_logit.shape
+        per_cell = (self.layer_skin_rows @ self.layer_skin_logit.reshape(K, -1)).reshape(-1, S)  # (R*cells, S)
+        c, mix = self.layer_skin_cells, self.layer_skin_mix
+        factor = per_cell[c[:, 0]] * mix[:, :1] + per_cell[c[:, 1]] * mix[:, 1:]
+        scaled = w[:, self.layer_skin_support] * factor.exp()
         w = w.index_copy(1, self.layer_skin_support, scaled)
         return w / w.sum(1, keepdim=True)
 
     def layer_skinning_prior(self) -> torch.Tensor:
         """Mean squared log-factor of the layer's learned skinning plus the mean squared change
-        between neighbouring knots: the weights stay near the built ones and change smoothly down
-        the cloth."""
+        between neighbouring knots and, with sectors, between neighbouring sectors round each tube:
+        the weights stay near the built ones and change smoothly over the cloth."""
         logit = self.layer_skin_logit
-        return logit.square().mean() + (logit[1:] - logit[:-1]).square().mean()
+        prior = logit.square().mean() + (logit[1:] - logit[:-1]).square().mean()
+        if self.layer_skin_sectors > 1:
+            K, cells, S = logit.shape
+            ring = logit.reshape(K, -1, self.layer_skin_sectors, S)
+            prior = prior + (ring - ring.roll(1, dims=2)).square().mean()
+        return prior
 
     def lbs_matrices(self, pose_transforms: torch.Tensor, index: torch.Tensor | None = None) -> torch.Tensor:
         """Per-Gaussian canonical -> observation matrices (N,4,4) for bone transforms (J,4,4) (of
