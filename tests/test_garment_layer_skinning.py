@@ -204,11 +204,13 @@ def test_stage1_trains_it_only_when_asked_and_stage2_never(tiny_scene, tiny_conf
     assert "layer_skinning" not in fixed.plan.steps["given"](fixed).terms
     fixed.step()
     assert torch.equal(fixed.model.layer_skin_logit, torch.zeros_like(fixed.model.layer_skin_logit))
+    assert not fixed.model.layer_skin_logit.requires_grad  # frozen: its weights are reused step to step
 
     cfg = dataclasses.replace(tiny_config, lr_layer_skinning=0.05)
     t = Trainer(tiny_scene, cfg, garment_layer=_skirt(body))
     assert "layer_skinning" in {g["name"] for g in t.optimizer.param_groups}
     assert "layer_skinning" in t.plan.steps["given"](t).terms
+    assert t.model.layer_skin_logit.requires_grad
     for _ in range(3):
         assert not t.step().get("skipped")
     learned = t.model.layer_skin_logit.detach().clone()
@@ -227,6 +229,7 @@ def test_stage1_trains_it_only_when_asked_and_stage2_never(tiny_scene, tiny_conf
     plan = start_stage2(t, Stage2Config(iters=4, num_azimuths=8, prior_size=48), allow_incomplete=True)
     assert plan is not None
     assert "layer_skinning" not in {g["name"] for g in t.optimizer.param_groups}
+    assert not t.model.layer_skin_logit.requires_grad
     t.step()
     assert torch.equal(t.model.layer_skin_logit.detach(), learned)
 
@@ -276,3 +279,41 @@ def test_prior_with_sectors_against_its_formula(body):
         AvatarConfig(garment_skin_sectors=0)
     with pytest.raises(ValueError, match="exceeds the garment layer's 8 columns per tube"):
         AvatarModel(body, _config(garment_skin_sectors=9), layer=layer)
+
+
+def test_frozen_skinning_is_kept_until_the_factors_change(body):
+    """Without a gradient the layer's weights and inverses are computed once and reused; an
+    in-place change of the factors (an optimiser's step, a loaded checkpoint) or a new dtype
+    recomputes them; with a gradient they are always fresh (and carry it)."""
+    layer = _skirt(body)
+    m = AvatarModel(body, _config(garment_skin_sectors=2), layer=layer)
+    T = body.bone_transforms(_walk_pose(body, 3)).float()
+    calls = []
+    real = m.layer_skin_weights
+
+    def counted():
+        calls.append(1)
+        return real()
+
+    m.layer_skin_weights = counted
+    with torch.no_grad():
+        a = m.lbs_matrices(T)
+        b = m.lbs_matrices(T)
+        assert len(calls) == 1 and torch.equal(a, b)
+        m.layer_skin_logit.normal_(0, 0.5, generator=torch.Generator().manual_seed(1))
+        c = m.lbs_matrices(T)
+        assert len(calls) == 2 and not torch.allclose(a, c, atol=1e-4)
+        m.load_state_dict({**m.state_dict(), "layer_skin_logit": torch.zeros_like(m.layer_skin_logit)})
+        assert torch.allclose(m.lbs_matrices(T), a, atol=1e-6) and len(calls) == 3
+    opt = torch.optim.Adam([m.layer_skin_logit], lr=0.1)
+    loss = m.lbs_matrices(T)[m.num_body:, :3, 3].sum()
+    assert len(calls) == 4
+    loss.backward()
+    assert m.layer_skin_logit.grad.abs().max() > 0
+    opt.step()
+    with torch.no_grad():
+        d = m.lbs_matrices(T)
+    assert len(calls) == 5 and not torch.allclose(d, a, atol=1e-4)
+    md = m.double()
+    with torch.no_grad():
+        assert md.lbs_matrices(T.double()).dtype == torch.float64 and len(calls) == 6

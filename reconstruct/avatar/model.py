@@ -201,9 +201,11 @@ class AvatarModel(nn.Module):
     def layer_param_groups(self, lr_features: float, lr_opacity: float, lr_skinning: float = 0.0) -> list[dict]:
         """Adam parameter groups of the garment layer (its feature map, at the body feature map's rate;
         its opacity parameters; with ``lr_skinning`` > 0 its learned skinning, ``layer_skin_logit``)
-        for a stage plan; [] without a layer."""
+        for a stage plan; [] without a layer. The skinning factors are frozen (no gradient) when
+        ``lr_skinning`` is 0, so that the plan's steps reuse the layer's weights (``_layer_skinning``)."""
         if self.layer is None:
             return []
+        self.layer_skin_logit.requires_grad_(lr_skinning > 0)
         groups = [{"params": [self.layer_features], "lr": lr_features, "name": "layer_features"},
                   {"params": [self.layer_opacity], "lr": lr_opacity, "name": "layer_opacity"}]
         if lr_skinning > 0:
@@ -372,6 +374,22 @@ class AvatarModel(nn.Module):
             prior = prior + (ring - ring.roll(1, dims=2)).square().mean()
         return prior
 
+    def _layer_skinning(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The layer's (M,J) learned weights and (M,4,4) canonical inverses. Where no gradient is
+        wanted (evaluation, export, the viewer's snapshots, or frozen factors) they are kept until
+        the factors change (``_version`` counts in-place updates: an optimiser's step, a loaded
+        checkpoint; ``.to()`` / ``.double()`` give them new storage)."""
+        logit = self.layer_skin_logit
+        fresh = torch.is_grad_enabled() and logit.requires_grad
+        key = (logit.data_ptr(), logit._version, logit.device, logit.dtype)
+        if not fresh and getattr(self, "_layer_skin_cache", (None,))[0] == key:
+            return self._layer_skin_cache[1]
+        w = self.layer_skin_weights()
+        inv = torch.linalg.inv(blend(w, self.canonical_transforms.to(w)))
+        if not fresh:
+            self._layer_skin_cache = (key, (w, inv))
+        return w, inv
+
     def lbs_matrices(self, pose_transforms: torch.Tensor, index: torch.Tensor | None = None) -> torch.Tensor:
         """Per-Gaussian canonical -> observation matrices (N,4,4) for bone transforms (J,4,4) (of
         the Gaussians ``index`` when given). The garment layer's use its learned weights
@@ -389,8 +407,9 @@ class AvatarModel(nn.Module):
         else:
             on_layer = index >= nb
             body, layer = index[~on_layer], index[on_layer] - nb
-        wl = self.layer_skin_weights()[layer]
-        M_layer = blend(wl, T) @ torch.linalg.inv(blend(wl, self.canonical_transforms.to(wl)))
+        w_all, inv_all = self._layer_skinning()
+        wl = w_all[layer]
+        M_layer = blend(wl, T) @ inv_all[layer]
         M_body = blend(self.skin_weights[body], T) @ self.canonical_inverse[body]
         if index is None:
             return torch.cat([M_body, M_layer])
