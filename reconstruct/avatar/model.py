@@ -169,10 +169,8 @@ class AvatarModel(nn.Module):
                                                                      dtype=torch.float32), persistent=False)  # (R,K)
             # and round each tube at garment_skin_sectors sector centres (columns interpolate the two
             # nearest, wrapping round): each Gaussian mixes two (row, tube, sector) cells
-            sectors, per_tube = config.garment_skin_sectors, cols // layer.tubes
-            if sectors > per_tube:
-                raise ValueError(f"AvatarConfig.garment_skin_sectors ({sectors}) exceeds the garment layer's "
-                                 f"{per_tube} columns per tube")
+            per_tube = cols // layer.tubes
+            sectors = min(config.garment_skin_sectors, per_tube)  # at most one per column
             theta = (rc[:, 1] % per_tube).double() * sectors / per_tube  # in sector units
             p0 = theta.floor().long()
             frac = (theta - p0).float() if sectors > 1 else torch.zeros(len(rc))  # one sector: one cell

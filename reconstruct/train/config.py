@@ -165,6 +165,8 @@ class Stage1Config(StageSettings):
         d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed
+        if isinstance(d.get("avatar"), dict) and "garment_skin_sectors" not in d["avatar"]:
+            d["avatar"] = {**d["avatar"], "garment_skin_sectors": 1}  # recorded before the sectors existed
         if isinstance(d.get("avatar"), dict) and "garment_layer" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "garment_layer": "off"}  # recorded before the garment layer existed
         return super().from_dict(d)
