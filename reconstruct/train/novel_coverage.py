@@ -52,14 +52,11 @@ def novel_views(scene: Scene, body, name: str = "walk", frames: int = 8,
                 azimuths=NOVEL_AZIMUTHS) -> list[NovelView]:
     """Ground truth of the novel sequence ``name`` (``frames`` poses of ``body``, the scene's body,
     placed on the video's first frame) at each of ``azimuths`` on the evaluation orbit."""
-    from ..data.synthetic.generator import SyntheticConfig, render_truth_masks
+    from ..data.synthetic.generator import render_truth_masks, synthetic_config_of
 
-    if scene.meta.get("source") != "synthetic" or "config" not in scene.meta:
-        raise ValueError(f"novel-pose coverage needs a synthetic scene (ground truth in any pose); scene "
-                         f"{scene.name!r} is not one")
+    config = synthetic_config_of(scene)
     if frames < 2:
         raise ValueError(f"novel-pose coverage needs at least 2 frames, found {frames}")
-    config = SyntheticConfig(**scene.meta["config"])
     target = np.asarray(scene.meta["target"], np.float64)
     poses = novel_pose_sequence(body, name, frames, base=scene.frames[0].pose)
     cams = [Camera.orbit(float(az), config.elevation_deg, config.distance, target, name=f"novel_az{az:03.0f}",

@@ -107,16 +107,10 @@ def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progre
         faces = body.faces.numpy()
         corner_uvs = body.uv_coords.numpy()[body.face_uv_indices.numpy()]
         mesh = MeshRenderer(ctx, faces, corner_uvs, texture, supersample=config.supersample)
-    faces_t = body.faces
 
     def render(pose, camera, what):
         check_body_in_view(camera, body.posed_joints(pose).numpy(), what)
-        if outfit is not None:
-            verts, normals = outfit.posed(pose)
-        else:
-            verts = body.posed_vertices(pose)
-            normals = vertex_normals(verts, faces_t).numpy()
-            verts = verts.numpy()
+        verts, normals = posed_person(body, outfit, pose)
         out = mesh.render(verts, normals, camera)
         mask = quantize(out.mask)
         return quantize(out.rgb), mask, quantize_normals(out.normal, mask)
@@ -178,6 +172,24 @@ def repaint(config: SyntheticConfig) -> PaintedClothing:
     return paint_clothing(spec.build(), rng, config.texture_size, model)
 
 
+def synthetic_config_of(scene: Scene) -> SyntheticConfig:
+    """The SyntheticConfig a synthetic scene was built from; a clear error for any other scene
+    (only a synthetic scene's ground truth can be rendered in new poses)."""
+    if scene.meta.get("source") != "synthetic" or "config" not in scene.meta:
+        raise ValueError(f"scene {scene.name!r} is not a synthetic scene: its ground truth in new poses (novel-pose "
+                         "coverage needs a synthetic scene) exists only for `synthetic:` scenes")
+    return SyntheticConfig(**scene.meta["config"])
+
+
+def posed_person(body, outfit, pose) -> tuple[np.ndarray, np.ndarray]:
+    """(V,3) vertices and normals of the person in ``pose``: the body and its LooseOutfit's garment
+    as one mesh (``outfit.faces``), or the body alone (``body.faces``) when ``outfit`` is None."""
+    if outfit is not None:
+        return outfit.posed(pose)
+    v = body.posed_vertices(pose)
+    return v.numpy(), vertex_normals(v, body.faces).numpy()
+
+
 def loose_outfit_of(scene: Scene):
     """The LooseOutfit of a synthetic loose-clothing scene (rebuilt from its configuration), or None."""
     cfg = scene.meta.get("config") or {}
@@ -210,24 +222,19 @@ def render_scene_views(scene: Scene, texture: np.ndarray, views, *, supersample:
     too, in black: it hides what it covers (``outfit``: the scene's LooseOutfit when the caller
     has it; else rebuilt from the scene's configuration)."""
     outfit = outfit if outfit is not None else loose_outfit_of(scene)
+    body = outfit.body if outfit is not None else scene.body_model()
     if outfit is not None:
         from renderer.gl_context import shared_offscreen_context
 
         mesh = outfit.renderer(shared_offscreen_context(), supersample=supersample, ambient=ambient,
                                body_texture=texture, garment_texture=np.zeros_like(outfit.garment_texture))
     else:
-        body = scene.body_model()
         mesh = _mesh_renderer(body, texture, supersample, ambient)
     try:
         out = []
         for v in views:
             pose = scene.frames[getattr(v, "frame_index", getattr(v, "index", 0))].pose
-            if outfit is not None:
-                verts, normals = outfit.posed(pose)
-            else:
-                verts = body.posed_vertices(pose)
-                normals = vertex_normals(verts, body.faces).numpy()
-                verts = verts.numpy()
+            verts, normals = posed_person(body, outfit, pose)
             out.append(quantize(mesh.render(verts, normals, v.camera).rgb))
         return out
     finally:
@@ -243,12 +250,9 @@ def render_truth_masks(scene: Scene, poses, cameras, *, outfit=None) -> tuple[li
     it; else rebuilt from the scene's configuration."""
     from renderer.gl_context import shared_offscreen_context
 
-    if scene.meta.get("source") != "synthetic" or "config" not in scene.meta:
-        raise ValueError(f"scene {scene.name!r} is not a synthetic scene: its ground truth cannot be rendered in "
-                         "new poses (only `synthetic:` scenes have it)")
+    config = synthetic_config_of(scene)
     if len(poses) != len(cameras):
         raise ValueError(f"render_truth_masks: {len(poses)} poses but {len(cameras)} cameras")
-    config = SyntheticConfig(**scene.meta["config"])
     outfit = outfit if outfit is not None else loose_outfit_of(scene)
     body = outfit.body if outfit is not None else scene.body_model()
     ctx = shared_offscreen_context()
@@ -261,11 +265,7 @@ def render_truth_masks(scene: Scene, poses, cameras, *, outfit=None) -> tuple[li
     try:
         masks, garment_masks = [], ([] if garment is not None else None)
         for pose, camera in zip(poses, cameras):
-            if outfit is not None:
-                verts, normals = outfit.posed(pose)
-            else:
-                v = body.posed_vertices(pose)
-                verts, normals = v.numpy(), vertex_normals(v, body.faces).numpy()
+            verts, normals = posed_person(body, outfit, pose)
             masks.append(whole.render(verts, normals, camera).mask.astype(np.float32))
             if garment is not None:
                 garment_masks.append(garment.render(verts, normals, camera).mask.astype(np.float32))
