@@ -70,6 +70,11 @@ class Stage1Config(StageSettings):
     # shows as translucent cloth and as cloth painted on the legs once they move; the alpha loss
     # still fades the layer where the silhouette shows nothing
     lambda_layer_opaque: float = 0.0
+    # cloth is opaque where the silhouette says there is something: mean (1 - opacity) over the
+    # layer Gaussians of each given view that project layer_cover_inset pixels inside its mask
+    # (train/layer_cover.py); those beyond the silhouette are left to the alpha loss
+    lambda_layer_cover: float = 0.0
+    layer_cover_inset: int = 2
     # the garment layer's learned skinning (AvatarModel.layer_skin_weights: log-factors per tube and
     # bone at knots down the layer): its Adam rate (0 = keep the built weights) and the weight of its
     # prior (AvatarModel.layer_skinning_prior: near the built weights, smooth down the cloth). Stage I only
@@ -132,6 +137,9 @@ class Stage1Config(StageSettings):
         if isinstance(self.avatar, dict):
             self.avatar = config_layer.from_dict(AvatarConfig, self.avatar, "avatar")
         super().__post_init__()
+        if self.lambda_layer_cover < 0 or self.layer_cover_inset < 0:
+            raise ValueError(f"need lambda_layer_cover >= 0 and layer_cover_inset >= 0, found "
+                             f"{self.lambda_layer_cover} and {self.layer_cover_inset}")
         if self.fill_unseen_ring < 0:
             raise ValueError(f"fill_unseen_ring must be >= 0, found {self.fill_unseen_ring}")
         if not 0 <= self.lr_decay_start < 1 or not 0 < self.lr_final <= 1:
@@ -163,6 +171,7 @@ class Stage1Config(StageSettings):
         d.setdefault("random_background", False)  # recorded before training on random backgrounds
         d.setdefault("seen_on_person", False)  # recorded before the seen flags were recounted on the person
         d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
+        d.setdefault("lambda_layer_cover", 0.0)  # recorded before the layer's cover prior existed
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed
         if isinstance(d.get("avatar"), dict) and "garment_skin_sectors" not in d["avatar"]:
