@@ -14,8 +14,7 @@ import torch
 
 from reconstruct.run_folder import RunFolder
 from reconstruct.train.checkpoint import CheckpointError, load_checkpoint, save_checkpoint, upgrade_v1
-
-SCENE = "synthetic:seed=1,frames=3,size=48,azimuths=8,eval_frames=1,texture_size=128"
+from tiny_runs import TINY_SCENE, train_tiny
 
 
 class _Marker:
@@ -30,12 +29,8 @@ class _Marker:
 
 @pytest.fixture(scope="module")
 def trained_run(tmp_path_factory):
-    from app.cli import main
-
     run = tmp_path_factory.mktemp("runs") / "run"
-    assert main(["train", "--scene", SCENE, "--out", str(run), "--iters", "3", "--gaussian-res", "32",
-                 "--hidden", "16", "--quiet"]) == 0
-    return run
+    return train_tiny(run)
 
 
 def _listing(folder):
@@ -53,7 +48,7 @@ def _hostile(path, marker):
 def _commands(run, tmp_path):
     return [["eval", str(run), "--json"],
             ["export", str(run), "--orbit", "2", "--size", "32", "--out", str(tmp_path / "o.gif"), "--quiet"],
-            ["train", "--scene", SCENE, "--out", str(run), "--iters", "5", "--quiet"]]
+            ["train", "--scene", TINY_SCENE, "--out", str(run), "--iters", "5", "--quiet"]]
 
 
 @pytest.mark.parametrize("kind", ["hostile", "truncated", "random"])

@@ -12,6 +12,7 @@ import torch
 
 from reconstruct.edits import EditsError, Erase, Lock, PaintSeen, PaintUnseen, Recolour, Redo
 from reconstruct.edits.session import EditSession
+from tiny_runs import TINY_SCENE, train_tiny
 
 LOCK_TOL = 0.0  # locked Gaussians' decoded attributes are bit-identical after further training
 
@@ -345,10 +346,9 @@ def test_headless_edit_command(tmp_path, capsys):
     from app.cli import main
     from reconstruct.run_folder import RunFolder
 
-    scene = "synthetic:seed=1,frames=3,size=48,azimuths=8,eval_frames=1,texture_size=128"
+    scene = TINY_SCENE
     run = tmp_path / "run"
-    assert main(["train", "--scene", scene, "--out", str(run), "--iters", "3", "--gaussian-res", "32", "--hidden",
-                 "16", "--quiet", "--set", "crop_margin=4"]) == 0
+    train_tiny(run, scene=scene)
     assert main(["edit", str(run), "--select", "part=head", "--op", "erase"]) == 0
     assert main(["edit", str(run), "--select", "rect=0,0,24,48@front", "--select=-part=head", "--op",
                  "recolour:30,1,0.5", "--size", "48"]) == 0

@@ -7,6 +7,7 @@ import os
 import imageio.v3 as iio
 import numpy as np
 import pytest
+from tiny_runs import TINY_SCENE, train_tiny
 
 
 @pytest.fixture
@@ -133,10 +134,9 @@ def test_failing_writer_leaves_target_untouched(session, tmp_path, monkeypatch, 
 def test_cli_export(tmp_path, capsys):
     from app.cli import main
 
-    scene = "synthetic:seed=1,frames=3,size=48,azimuths=8,eval_frames=1,texture_size=128"
+    scene = TINY_SCENE
     run = tmp_path / "run"
-    assert main(["train", "--scene", scene, "--out", str(run), "--iters", "3", "--gaussian-res", "32", "--hidden",
-                 "16", "--quiet", "--set", "crop_margin=4"]) == 0
+    train_tiny(run, scene=scene)
     capsys.readouterr()
     before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
 

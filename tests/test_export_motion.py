@@ -12,20 +12,16 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 import pytest
+from tiny_runs import train_tiny
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
-SCENE = "synthetic:seed=1,frames=3,size=48,azimuths=8,eval_frames=1,texture_size=128"
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    from app.cli import main
-
     run = tmp_path_factory.mktemp("motion_run") / "run"
-    assert main(["train", "--scene", SCENE, "--out", str(run), "--iters", "3", "--gaussian-res", "32", "--hidden",
-                 "16", "--quiet", "--set", "crop_margin=4"]) == 0
-    return run
+    return train_tiny(run)
 
 
 @pytest.fixture(scope="module")

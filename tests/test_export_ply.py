@@ -12,21 +12,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tiny_runs import TINY_SCENE, train_tiny
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
-SCENE = "synthetic:seed=1,frames=3,size=48,azimuths=8,eval_frames=1,texture_size=128"
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """A briefly trained run folder (a checkpoint after 3 steps)."""
-    from app.cli import main
 
     run = tmp_path_factory.mktemp("ply_run") / "run"
-    assert main(["train", "--scene", SCENE, "--out", str(run), "--iters", "3", "--gaussian-res", "32", "--hidden",
-                 "16", "--quiet", "--set", "crop_margin=4"]) == 0
-    return run
+    return train_tiny(run)
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +48,7 @@ def test_cli_ply_single_and_sequences(run, avatar, tmp_path, capsys):
     assert main(["export", str(run), "--ply", str(tmp_path / "canon.ply"), "--canonical", "--up", "z_up",
                  "--quiet"]) == 0
     assert main(["export", str(run), "--ply", str(tmp_path / "walk"), "--novel", "walk", "--frames", "4"]) == 0
-    assert main(["export", str(run), "--ply", str(tmp_path / "video"), "--poses", SCENE, "--quiet"]) == 0
+    assert main(["export", str(run), "--ply", str(tmp_path / "video"), "--poses", TINY_SCENE, "--quiet"]) == 0
     captured = capsys.readouterr()
     assert "wrote " + str(tmp_path / "walk") + " (4 frames" in captured.out
     assert "4/4" in captured.err  # the progress bar of the sequence

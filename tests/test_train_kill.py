@@ -13,15 +13,14 @@ import pytest
 import torch
 
 from reconstruct.train.checkpoint import load_checkpoint
+from tiny_runs import TINY_SCENE, tiny_train_args
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENE = "synthetic:seed=1,frames=3,size=48,azimuths=8,eval_frames=1,texture_size=128"
 
 
 def _train_cmd(run: Path, iters: int, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "app.cli", "train", "--scene", SCENE, "--out", str(run), "--iters", str(iters),
-            "--gaussian-res", "32", "--hidden", "16", "--quiet", "--eval-every", "1",
-            "--set", "checkpoint_every_seconds=0.3", "--set", "crop_margin=4", "--threads", "1", *extra]
+    return [sys.executable, "-m", "app.cli", *tiny_train_args(run, iters, "--eval-every", "1", "--set",
+                                                              "checkpoint_every_seconds=0.3", "--threads", "1", *extra)]
 
 
 @pytest.mark.slow
@@ -48,7 +47,7 @@ def test_sigkill_then_resume(tmp_path, monkeypatch):
         json.loads(line)
     from reconstruct.data.load import canonical_scene_spec
 
-    assert json.loads((run / "run.json").read_text())["scene"] == canonical_scene_spec(SCENE)
+    assert json.loads((run / "run.json").read_text())["scene"] == canonical_scene_spec(TINY_SCENE)
     step = state["step"]
 
     # resume: same parameters as the checkpoint, then continue to a fixed step count

@@ -10,6 +10,7 @@ from reconstruct.train.checkpoint import CheckpointError, load_checkpoint, save_
 from reconstruct.train.metrics_log import MetricsLog
 from reconstruct.train.checkpoint import CHECKPOINT_NAME
 from reconstruct.train.trainer import Trainer
+from tiny_runs import TINY_SCENE, tiny_train_args
 
 
 def test_training_reduces_the_loss_and_marks_visibility(tiny_scene, tiny_config):
@@ -117,14 +118,13 @@ def test_evaluation_reports_seen_and_unseen(tiny_scene, tiny_config):
 def test_cli_train_eval_and_bad_input(tmp_path, capsys):
     from app.cli import main
 
-    scene = "synthetic:seed=1,frames=3,size=48,azimuths=8,eval_frames=1,texture_size=128"
+    scene = TINY_SCENE
     run = tmp_path / "run"
     assert main(["train", "--scene", scene, "--out", str(run), "--iters", "0"]) == 2
     assert "--iters must be at least 1" in capsys.readouterr().err
     assert main(["train", "--scene", "/no/such/scene", "--out", str(run), "--iters", "2"]) == 2
     assert "no such scene folder" in capsys.readouterr().err
-    args = ["train", "--scene", scene, "--out", str(run), "--iters", "3", "--gaussian-res", "32", "--hidden", "16",
-            "--quiet", "--set", "crop_margin=4"]
+    args = tiny_train_args(run, scene=scene)
     assert main(args) == 0
     assert (run / CHECKPOINT_NAME).is_file() and (run / "error_vs_time.png").is_file()
     capsys.readouterr()

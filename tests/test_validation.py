@@ -10,6 +10,7 @@ import json
 import pytest
 
 from reconstruct.train.validation import DEFAULT_HOLDOUT, holdout_frames, resolve_holdout
+from tiny_runs import tiny_train_args
 
 
 def test_holdout_frames():
@@ -63,8 +64,7 @@ def test_train_eval_and_report_on_a_scene_without_evaluation_views(tiny_scene, t
     folder = tmp_path / "my_video"
     write_scene(_video_only(tiny_scene), folder)
     run = tmp_path / "run"
-    args = ["train", "--scene", str(folder), "--out", str(run), "--iters", "4", "--gaussian-res", "32",
-            "--hidden", "16", "--set", "crop_margin=4", "--quiet"]
+    args = tiny_train_args(run, 4, scene=str(folder))
     assert main(args + ["--stage", "all", "--stage2-iters", "2", "--set2", "num_azimuths=8",
                         "--set2", "prior_size=32"]) == 0
     out = capsys.readouterr()
