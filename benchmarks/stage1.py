@@ -19,6 +19,8 @@ layer before, ``loose-2cm``) and every 1.4 cm (the default, ``loose-1.4cm``); wh
 adds is its Gaussians, the alpha-against-mask loss, the spacing regulariser over its grid edges
 and its learned skinning with that prior (all in the pieces above, as in ``GivenViewStep``):
     python benchmarks/stage1.py --configs loose-off,loose-2cm,loose-1.4cm --rounds 2
+and the layer's cover prior (``train/layer_cover.py``; in "losses") against none:
+    python benchmarks/stage1.py --configs loose-1.4cm,loose-nocover --rounds 2
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ CONFIGS = {  # name -> (Stage1Config constructor, avatar overrides, the scene's 
     "loose-off": ("default", {"garment_layer": "off"}, "wide_trousers"),
     "loose-2cm": ("default", {"garment_layer_step": 0.02}, "wide_trousers"),
     "loose-1.4cm": ("default", {"garment_layer_step": 0.014}, "wide_trousers"),
+    "loose-nocover": ("default", {}, "wide_trousers"),  # the layer without its cover prior
 }
 
 
@@ -57,6 +60,7 @@ def child(cfg: dict) -> dict:
     from reconstruct.train.render import render_avatar
     from reconstruct.train.trainer import Trainer
     from reconstruct.avatar.garment_layer import neighbour_strain
+    from reconstruct.train.layer_cover import view_cover_term
 
     kind, avatar, clothing = CONFIGS[cfg["name"]]
     base = Stage1Config.paper() if kind == "paper" else Stage1Config()
@@ -65,6 +69,8 @@ def child(cfg: dict) -> dict:
         over["avatar"] = avatar
     if cfg["name"].endswith("nocull"):
         over["cull_backfacing"] = None
+    if cfg["name"].endswith("nocover"):
+        over["lambda_layer_cover"] = 0.0
     c = config_layer.with_overrides(base, over)
     spec = f"synthetic:seed=0,size={cfg['size']}" + (f",clothing={clothing}" if clothing else "")
     scene = load_scene(spec, progress=False)
@@ -108,6 +114,9 @@ def child(cfg: dict) -> dict:
                     canon.means, edges, rest)
                 if c.lr_layer_skinning > 0:
                     loss = loss + c.lambda_layer_skinning * model.layer_skinning_prior()
+                if c.lambda_layer_cover:
+                    cover = view_cover_term(model, posed.means, idx, tgt.camera, tgt.mask, c.layer_cover_inset)
+                    loss = loss if cover is None else loss + c.lambda_layer_cover * cover
             return loss
 
         loss = timed("losses", loss_fn)

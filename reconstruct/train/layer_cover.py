@@ -55,3 +55,11 @@ def layer_cover_term(opacities: torch.Tensor, means: torch.Tensor, ids: torch.Te
     if not bool(inside.any()):
         return None
     return (1.0 - opacities[ids[inside]]).mean()
+
+
+def view_cover_term(model, means: torch.Tensor, index: torch.Tensor | None, camera, mask: torch.Tensor,
+                    inset: int = 2) -> torch.Tensor | None:
+    """``layer_cover_term`` for one training view of ``model`` (an AvatarModel): ``means`` the posed
+    centres of the Gaussians decoded in it, ``index`` their ids (None: all of them)."""
+    ids = torch.arange(model.num_gaussians, device=means.device) if index is None else index
+    return layer_cover_term(model.opacities(), means, ids, model.num_body, camera, mask, inset)

@@ -23,7 +23,7 @@ from ..avatar.garment_layer import neighbour_strain
 from . import losses as L
 from .config import Stage1Config
 from .data import composite_on
-from .layer_cover import layer_cover_term
+from .layer_cover import view_cover_term
 from .render import render_avatar
 
 if TYPE_CHECKING:
@@ -160,9 +160,7 @@ class GivenViewStep(TrainingStep):
                 terms["layer_opaque"] = (1.0 - model.opacities()[model.num_body:]).mean()
                 weights["layer_opaque"] = cfg.lambda_layer_opaque
             if cfg.lambda_layer_cover:
-                ids = index if index is not None else torch.arange(state.num_gaussians, device=posed.means.device)
-                cover = layer_cover_term(model.opacities(), posed.means, ids, model.num_body, tgt.camera,
-                                         tgt.mask, cfg.layer_cover_inset)
+                cover = view_cover_term(model, posed.means, index, tgt.camera, tgt.mask, cfg.layer_cover_inset)
                 if cover is not None:
                     terms["layer_cover"] = cover
                     weights["layer_cover"] = cfg.lambda_layer_cover
