@@ -295,7 +295,7 @@ def test_opacity_prior_is_the_mean_transparency_and_raises_hidden_opacities(tiny
     m = t.model
     outcome = GivenViewStep(t.config)(t)
     want = float((1 - m.opacities()[m.num_body:]).detach().mean())
-    assert abs(float(outcome.terms["layer_opaque"]) - want) < 1e-6
+    assert abs(float(outcome.terms["layer_opaque"].detach()) - want) < 1e-6
     assert outcome.weights["layer_opaque"] == 0.5
     assert abs(want - 0.5) < 1e-5  # the layer starts at opacity 0.5
     off = _trainer(tiny_scene, tiny_config, _layer(body))
