@@ -8,7 +8,7 @@ import pytest
 from reconstruct import config as C
 from reconstruct.stage2.config import Stage2Config
 from reconstruct.train.config import Stage1Config
-from tiny_runs import TINY_SCENE, tiny_train_args
+from tiny_runs import tiny_train_args
 
 
 def test_values_convert_by_annotation_not_by_default():
@@ -53,9 +53,8 @@ def test_from_dict_converts_json_and_refuses_unknown_keys():
 def test_cli_set_and_set2(tmp_path, capsys):
     from app.cli import main
 
-    scene = TINY_SCENE
     run = tmp_path / "run"
-    base = tiny_train_args(run, 2, scene=scene)
+    base = tiny_train_args(run, 2)
     # the LPIPS file error, not a conversion error; threads an int
     assert main(base + ["--set", "threads=1", "--set", "lpips_backbone=/nonexistent.pth"]) == 2
     err = capsys.readouterr().err

@@ -12,7 +12,7 @@ import torch
 
 from reconstruct.edits import EditsError, Erase, Lock, PaintSeen, PaintUnseen, Recolour, Redo
 from reconstruct.edits.session import EditSession
-from tiny_runs import TINY_SCENE, train_tiny
+from tiny_runs import train_tiny
 
 LOCK_TOL = 0.0  # locked Gaussians' decoded attributes are bit-identical after further training
 
@@ -346,9 +346,8 @@ def test_headless_edit_command(tmp_path, capsys):
     from app.cli import main
     from reconstruct.run_folder import RunFolder
 
-    scene = TINY_SCENE
     run = tmp_path / "run"
-    train_tiny(run, scene=scene)
+    train_tiny(run)
     assert main(["edit", str(run), "--select", "part=head", "--op", "erase"]) == 0
     assert main(["edit", str(run), "--select", "rect=0,0,24,48@front", "--select=-part=head", "--op",
                  "recolour:30,1,0.5", "--size", "48"]) == 0

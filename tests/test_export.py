@@ -134,15 +134,14 @@ def test_failing_writer_leaves_target_untouched(session, tmp_path, monkeypatch, 
 def test_cli_export(tmp_path, capsys):
     from app.cli import main
 
-    scene = TINY_SCENE
     run = tmp_path / "run"
-    train_tiny(run, scene=scene)
+    train_tiny(run)
     capsys.readouterr()
     before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
 
     assert main(["export", str(run), "--orbit", "4", "--out", str(tmp_path / "o.gif"), "--size", "48", "--quiet"]) == 0
     assert _frames(tmp_path / "o.gif").shape[:3] == (4, 48, 48)
-    assert main(["export", str(run), "--poses", scene, "--out", str(tmp_path / "p.gif"), "--size", "32",
+    assert main(["export", str(run), "--poses", TINY_SCENE, "--out", str(tmp_path / "p.gif"), "--size", "32",
                  "--quiet"]) == 0
     assert _frames(tmp_path / "p.gif").shape[0] == 3
     capsys.readouterr()
@@ -154,7 +153,7 @@ def test_cli_export(tmp_path, capsys):
     assert main(["export", str(run), "--orbit", "4", "--out", str(tmp_path / "x.webm")]) == 2
     assert "'.webm'" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # --orbit and --poses are mutually exclusive, one is required
-        main(["export", str(run), "--orbit", "4", "--poses", scene, "--out", str(tmp_path / "x.gif")])
+        main(["export", str(run), "--orbit", "4", "--poses", TINY_SCENE, "--out", str(tmp_path / "x.gif")])
     with pytest.raises(SystemExit):
         main(["export", str(run), "--out", str(tmp_path / "x.gif")])
     capsys.readouterr()

@@ -16,7 +16,7 @@ from reconstruct.avatar.gaussian_sets import PosedGaussians
 from reconstruct.data.synthetic.generator import (SyntheticConfig, build_synthetic_scene, loose_outfit_of,
                                                   render_truth_masks)
 from reconstruct.train.novel_coverage import NOVEL_AZIMUTHS, novel_coverage, novel_views
-from tiny_runs import TINY_SCENE, train_tiny
+from tiny_runs import train_tiny
 
 SMALL = dict(seed=0, num_frames=3, image_size=128, num_eval_azimuths=4, eval_frames=1, texture_size=128)
 
@@ -108,9 +108,8 @@ def test_surface_avatar_has_no_holes_and_the_body_alone_leaves_the_skirt_open(sk
 def test_eval_command_reports_novel_coverage(tmp_path, capsys):
     from app.cli import main
 
-    spec = TINY_SCENE
     run = tmp_path / "run"
-    train_tiny(run, 2, scene=spec)
+    train_tiny(run, 2)
     capsys.readouterr()
     assert main(["eval", str(run), "--json", "--novel", "walk", "--novel-frames", "3"]) == 0
     result = json.loads(capsys.readouterr().out)

@@ -124,7 +124,7 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
     assert "--iters must be at least 1" in capsys.readouterr().err
     assert main(["train", "--scene", "/no/such/scene", "--out", str(run), "--iters", "2"]) == 2
     assert "no such scene folder" in capsys.readouterr().err
-    args = tiny_train_args(run, scene=scene)
+    args = tiny_train_args(run)
     assert main(args) == 0
     assert (run / CHECKPOINT_NAME).is_file() and (run / "error_vs_time.png").is_file()
     capsys.readouterr()
