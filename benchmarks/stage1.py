@@ -115,7 +115,7 @@ def child(cfg: dict) -> dict:
                 if c.lr_layer_skinning > 0:
                     loss = loss + c.lambda_layer_skinning * model.layer_skinning_prior()
                 if c.lambda_layer_cover:
-                    cover = view_cover_term(model, posed.means, idx, tgt.camera, tgt.mask, c.layer_cover_inset)
+                    cover = view_cover_term(model, posed.means, idx, tgt.camera, tgt.inner_mask(c.layer_cover_inset))
                     loss = loss if cover is None else loss + c.lambda_layer_cover * cover
             return loss
 

@@ -14,11 +14,17 @@ import torch
 from reconstruct.avatar.garment_layer import VolumeHint, build_garment_layer, landmark_heights
 from reconstruct.camera import Camera
 from reconstruct.train.config import Stage1Config
+from reconstruct.train.evaluate import inner_mask
 from reconstruct.train.layer_cover import inside_mask, layer_cover_term
 
 
 def _camera() -> Camera:
     return Camera.look_at(eye=(0.3, 0.2, 3.0), target=(0.0, 0.0, 0.0), width=40, height=30, fov_y_deg=40.0)
+
+
+def _inner(mask, inset: int) -> torch.Tensor:
+    """The (H,W) mask eroded as training erodes it (``evaluate.inner_mask``)."""
+    return inner_mask(torch.as_tensor(mask, dtype=torch.float32) > 0.5, inset)
 
 
 def _reference_inside(points: np.ndarray, cam: Camera, mask: np.ndarray, inset: int) -> np.ndarray:
@@ -49,7 +55,7 @@ def test_inside_mask_against_the_cameras_projection(inset):
     mask[0:8, 35:40] = True  # touching the image border
     pts = rng.uniform(-1.2, 1.2, (4000, 3))
     pts = np.concatenate([pts, [[0.3, 0.2, 4.0]]])  # behind the camera
-    got = inside_mask(torch.as_tensor(pts, dtype=torch.float32), cam, torch.as_tensor(mask, dtype=torch.float32), inset)
+    got = inside_mask(torch.as_tensor(pts, dtype=torch.float32), cam, _inner(mask, inset))
     want = _reference_inside(pts, cam, mask, inset)
     # float32 against float64 projection: a point within 1e-4 px of a pixel edge may land either side
     uv, _ = cam.project(pts)
@@ -58,8 +64,7 @@ def test_inside_mask_against_the_cameras_projection(inset):
     assert want.sum() > 100 and (~want).sum() > 100
     assert not got[-1]  # behind the camera
     if inset:
-        assert inside_mask(torch.as_tensor(pts, dtype=torch.float32), cam, torch.as_tensor(mask, dtype=torch.float32),
-                           0).sum() > got.sum()
+        assert inside_mask(torch.as_tensor(pts, dtype=torch.float32), cam, _inner(mask, 0)).sum() > got.sum()
 
 
 def test_term_is_the_mean_over_the_layer_inside():
@@ -71,14 +76,15 @@ def test_term_is_the_mean_over_the_layer_inside():
     means = torch.tensor([inside_pt, inside_pt, outside_pt, inside_pt, outside_pt])
     ids = torch.tensor([0, 5, 6, 7, 8])  # 0: a body Gaussian; 5..8: the layer's (num_body = 5)
     opac = torch.tensor([1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.9, 0.6, 0.1], requires_grad=True)
-    term = layer_cover_term(opac, means, ids, 5, cam, mask, inset=2)
+    inner = _inner(mask, 2)
+    term = layer_cover_term(opac, means, ids, 5, cam, inner)
     assert torch.allclose(term, torch.tensor(((1 - 0.2) + (1 - 0.6)) / 2))
     term.backward()
     g = opac.grad
     assert torch.allclose(g[[5, 7]], torch.full((2,), -0.5))  # only the layer inside
     assert torch.count_nonzero(g) == 2
-    assert layer_cover_term(opac, means[[0, 2]], ids[[0, 2]], 5, cam, mask) is None  # body, or layer outside
-    assert layer_cover_term(opac, means[:1], ids[:1], 5, cam, mask) is None
+    assert layer_cover_term(opac, means[[0, 2]], ids[[0, 2]], 5, cam, inner) is None  # body, or layer outside
+    assert layer_cover_term(opac, means[:1], ids[:1], 5, cam, inner) is None
 
 
 def test_config_and_old_records():
@@ -114,7 +120,7 @@ def test_a_step_raises_the_opacity_of_the_layer_inside_the_silhouette(tiny_scene
     tgt = t.data.targets[i]
     with torch.no_grad():
         posed = model.pose_with(model.canonical(), model.lbs_matrices(t.state.frame_transforms(i)))
-    inside = inside_mask(posed.means[N:], tgt.camera, tgt.mask, t.config.layer_cover_inset)
+    inside = inside_mask(posed.means[N:], tgt.camera, _inner(tgt.mask, t.config.layer_cover_inset))
     assert 0 < int(inside.sum()) < len(inside)
     t.optimizer.zero_grad()
     (outcome.terms["layer_cover"] * outcome.weights["layer_cover"]).backward()
@@ -122,3 +128,15 @@ def test_a_step_raises_the_opacity_of_the_layer_inside_the_silhouette(tiny_scene
     delta = model.opacities().detach()[N:] - before[N:]
     assert (delta[inside] > 0).all()
     assert torch.equal(delta[~inside], torch.zeros_like(delta[~inside]))
+
+
+def test_a_frames_inner_mask_is_eroded_once_per_inset(tiny_scene):
+    """``FrameTarget.inner_mask``: ``evaluate.inner_mask`` of its mask, kept for the next step."""
+    from reconstruct.train.data import TrainingData
+
+    tgt = TrainingData(tiny_scene, torch.zeros(3), crop_margin=4).targets[0]
+    two = tgt.inner_mask(2)
+    assert torch.equal(two, inner_mask(tgt.mask > 0.5, 2))
+    assert tgt.inner_mask(2) is two
+    one = tgt.inner_mask(1)
+    assert torch.equal(one, inner_mask(tgt.mask > 0.5, 1)) and one.sum() > two.sum()

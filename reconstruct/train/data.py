@@ -4,13 +4,14 @@ their cropped cameras. Prepared once per run and shared by every stage."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from ..camera import Camera
 from ..data.scene import Scene
+from .evaluate import inner_mask
 from .render import crop_camera, mask_box
 
 
@@ -21,6 +22,14 @@ class FrameTarget:
     mask: torch.Tensor  # (h,w)
     normal: torch.Tensor | None  # (h,w,3) camera-space normals stored as 0.5 (n + 1), or None
     box: tuple[int, int, int, int]
+    _inner: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def inner_mask(self, inset: int) -> torch.Tensor:
+        """(h,w) bool: the pixels at least ``inset`` px inside the mask (``evaluate.inner_mask``),
+        eroded once per inset: the mask never changes, and a step asks for it every time."""
+        if inset not in self._inner:
+            self._inner[inset] = inner_mask(self.mask > 0.5, inset)
+        return self._inner[inset]
 
 
 def composite_on(target: FrameTarget, background: torch.Tensor, current: torch.Tensor) -> torch.Tensor:

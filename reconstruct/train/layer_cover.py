@@ -8,8 +8,9 @@ trousers: median layer opacity 0.42, every other row near 0). Seen edge on, at t
 leg or from the side, such a layer lets the background through (holes at the trousers' edges).
 
 ``layer_cover_term``: the mean (1 - opacity) over the layer Gaussians of one training view whose
-posed centre projects at least ``inset`` pixels inside the frame's mask (``evaluate.inner_mask``;
-pixel (row i, column j) spans [j, j+1) x [i, i+1)). Gaussians outside the mask or at its edge are
+posed centre projects onto the frame's inner mask: the pixels at least ``Stage1Config.layer_cover_inset``
+pixels inside it (``FrameTarget.inner_mask``, eroded once per frame; pixel (row i, column j) spans
+[j, j+1) x [i, i+1)). Gaussians outside the mask or at its edge are
 left to the alpha loss, which fades the layer where it stands beyond the person. The prior over the
 whole layer (``lambda_layer_opaque``) also held those opaque and cost 1.3-1.5 dB (docs/loose_clothing.md).
 """
@@ -18,15 +19,12 @@ from __future__ import annotations
 
 import torch
 
-from .evaluate import inner_mask
 
-
-def inside_mask(means: torch.Tensor, camera, mask: torch.Tensor, inset: int) -> torch.Tensor:
-    """(K,) bool: which of the (K,3) world points project, in front of ``camera``, onto a pixel at
-    least ``inset`` pixels inside the (H,W) ``mask`` (> 0.5)."""
+def inside_mask(means: torch.Tensor, camera, inner: torch.Tensor) -> torch.Tensor:
+    """(K,) bool: which of the (K,3) world points project, in front of ``camera``, onto a True
+    pixel of the (H,W) bool ``inner`` (a mask eroded by ``evaluate.inner_mask``)."""
     if len(means) == 0:
         return torch.zeros(0, dtype=torch.bool, device=means.device)
-    inner = inner_mask(mask > 0.5, inset)
     R = torch.as_tensor(camera.R, dtype=means.dtype, device=means.device)
     t = torch.as_tensor(camera.t, dtype=means.dtype, device=means.device)
     pc = means.detach() @ R.T + t
@@ -43,23 +41,23 @@ def inside_mask(means: torch.Tensor, camera, mask: torch.Tensor, inset: int) -> 
 
 
 def layer_cover_term(opacities: torch.Tensor, means: torch.Tensor, ids: torch.Tensor, num_body: int,
-                     camera, mask: torch.Tensor, inset: int = 2) -> torch.Tensor | None:
-    """Mean (1 - opacity) over the garment-layer Gaussians among the decoded ones that project inside
-    ``mask`` (see the module); None when none does. ``opacities``: (N+M,) of the whole avatar;
+                     camera, inner: torch.Tensor) -> torch.Tensor | None:
+    """Mean (1 - opacity) over the garment-layer Gaussians among the decoded ones that project onto
+    ``inner`` (see the module); None when none does. ``opacities``: (N+M,) of the whole avatar;
     ``means``: (K,3) posed centres of the decoded Gaussians; ``ids``: (K,) their ids in N + M."""
     layer = ids >= num_body
     if not bool(layer.any()):
         return None
     ids, means = ids[layer], means[layer]
-    inside = inside_mask(means, camera, mask, inset)
+    inside = inside_mask(means, camera, inner)
     if not bool(inside.any()):
         return None
     return (1.0 - opacities[ids[inside]]).mean()
 
 
-def view_cover_term(model, means: torch.Tensor, index: torch.Tensor | None, camera, mask: torch.Tensor,
-                    inset: int = 2) -> torch.Tensor | None:
+def view_cover_term(model, means: torch.Tensor, index: torch.Tensor | None, camera,
+                    inner: torch.Tensor) -> torch.Tensor | None:
     """``layer_cover_term`` for one training view of ``model`` (an AvatarModel): ``means`` the posed
     centres of the Gaussians decoded in it, ``index`` their ids (None: all of them)."""
     ids = torch.arange(model.num_gaussians, device=means.device) if index is None else index
-    return layer_cover_term(model.opacities(), means, ids, model.num_body, camera, mask, inset)
+    return layer_cover_term(model.opacities(), means, ids, model.num_body, camera, inner)

@@ -160,7 +160,7 @@ class GivenViewStep(TrainingStep):
                 terms["layer_opaque"] = (1.0 - model.opacities()[model.num_body:]).mean()
                 weights["layer_opaque"] = cfg.lambda_layer_opaque
             if cfg.lambda_layer_cover:
-                cover = view_cover_term(model, posed.means, index, tgt.camera, tgt.mask, cfg.layer_cover_inset)
+                cover = view_cover_term(model, posed.means, index, tgt.camera, tgt.inner_mask(cfg.layer_cover_inset))
                 if cover is not None:
                     terms["layer_cover"] = cover
                     weights["layer_cover"] = cfg.lambda_layer_cover
