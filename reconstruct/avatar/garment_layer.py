@@ -19,7 +19,9 @@ This layer adds Gaussians where the silhouette says there is something:
 * the volume hint: ``volume_hint_from_masks`` reads the hem height and the flare from the
   front-view frames: image rows where the posed body's own silhouette leaves a gap between the
   projected leg axes and the mask covers that gap are cloth; the lowest such row is the hem; the
-  mask's width beyond the body's there is the flare (the top is the waist). Without cloth in the
+  mask's width beyond the body's there is the flare; the top is the waist, or the chest
+  (``torso_top_height``) when the mask also stands out past the torso's sides by 1 cm or more
+  (``frame_torso_evidence``: a coat, a dress), the standoff there read from it. Without cloth in the
   gap, each lower leg's mask run is compared with the body's own (``frame_leg_evidence``): legs
   that stand out by 2.5 cm or more over 10 cm of height are wide trousers, and the layer is two
   tubes, one round each leg (``VolumeHint.two_legs``; the grid's columns hold both, each wrapping
@@ -274,6 +276,16 @@ def landmark_heights(body: BodyModel) -> dict[str, float]:
 
 _LEG_OVERLAP = 0.03  # metres past the midline that each leg's tube takes in at the seat
 MIN_LEG_FLARE = 0.025  # metres the mask must stand out round each lower leg for wide trousers
+MIN_TORSO_STANDOFF = 0.01  # metres the mask must stand out past the torso for the layer to cover it
+_TORSO_CHAIN = ("spine03", "spine02", "spine01", "neck01")  # waist up to the neck
+
+
+def torso_top_height(body: BodyModel) -> float:
+    """The canonical height the layer may reach over the torso: 6 cm below the shoulder joints,
+    where the upper arms leave the chest (a layer round the shoulders would have to follow the arms)."""
+    J = body.canonical_joints.numpy()
+    L = body.bone_labels
+    return float(0.5 * (J[L.index("upperarm01.L"), 2] + J[L.index("upperarm01.R"), 2])) - 0.06
 
 
 def _tube_rings(pts: np.ndarray, zs: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -432,6 +444,18 @@ class HintEvidence:
     drop: float = 0.0  # metres from the first tested row (the crotch) down to the run's lowest row
     rows: tuple[int, int] | None = None  # image rows: the first tested one, the run's lowest
     legs: "LegEvidence | None" = None  # what the same frame says about wide trouser legs
+    torso: "TorsoEvidence | None" = None  # what the same frame says about cloth off the torso
+
+
+@dataclass(frozen=True)
+class TorsoEvidence:
+    """What one front-view frame says about cloth standing off the torso above the waist
+    (``frame_torso_evidence``). ``testable``: enough image rows between the waist and the chest in
+    which the mask's run across the torso and the body's own can be compared; ``standoff``: metres
+    the mask stands out past the body on each side (the median over those rows)."""
+
+    testable: bool
+    standoff: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -586,16 +610,62 @@ def frame_leg_evidence(body: BodyModel, frame, *, min_flare: float = MIN_LEG_FLA
     return LegEvidence(True, True, hem_z, float(np.percentile(near, 90)), span)
 
 
+def frame_torso_evidence(body: BodyModel, frame, *, rows_per_metre: float = 100.0, max_standoff: float = 0.08,
+                         min_rows: float = 0.5, silhouette: np.ndarray | None = None) -> TorsoEvidence:
+    """One frame's evidence about cloth off the torso (``TorsoEvidence``). Image rows at canonical
+    heights from the waist up to ``torso_top_height`` (one every 1 / ``rows_per_metre`` metres),
+    placed along the posed spine (``_TORSO_CHAIN``'s projected joints at their canonical heights);
+    in each, the run of mask pixels that holds the spine is compared with the run of the posed
+    body's own silhouette that holds it: half the difference of the widths, in metres at the
+    spine's depth, is the row's standoff. A row counts when both runs exist and the standoff is
+    below ``max_standoff`` (a hand or an arm against the torso in the mask but apart from it in the
+    fitted body, or the reverse, is not cloth). Testable: at least ``min_rows`` of the rows count;
+    the standoff is their median, so a few rows where an arm joins do not decide it."""
+    J = body.canonical_joints.numpy()
+    L = body.bone_labels
+    idx = [L.index(n) for n in _TORSO_CHAIN]
+    cz = J[idx, 2]
+    uv, depth = frame.camera.project(body.posed_joints(frame.pose).numpy()[idx])
+    mask = np.asarray(frame.mask) > 0.5
+    sil = silhouette if silhouette is not None else body_silhouette(body, frame)
+    metres_per_px = float(depth[0]) / float(frame.camera.fx)
+    top = torso_top_height(body)
+    heights = np.linspace(cz[0], top, max(2, int(round((top - cz[0]) * rows_per_metre)) + 1))
+    standoffs, asked = [], 0
+    for z in heights:
+        r, x = int(round(np.interp(z, cz, uv[:, 1]))), int(round(np.interp(z, cz, uv[:, 0])))
+        if not 0 <= r < mask.shape[0]:
+            continue
+        asked += 1
+        m, b = _run_around(mask[r], x), _run_around(sil[r], x)
+        if m is None or b is None:
+            continue
+        s = ((m[1] - m[0]) - (b[1] - b[0])) / 2 * metres_per_px
+        if s < max_standoff:
+            standoffs.append(s)
+    if not asked or len(standoffs) < min_rows * len(heights):
+        return TorsoEvidence(False)
+    return TorsoEvidence(True, float(np.median(standoffs)))
+
+
 def scene_hint_evidence(body: BodyModel, frames, *, max_frames: int = 8, **thresholds) -> list[HintEvidence]:
     """``frame_hint_evidence`` (with its ``thresholds``), with ``frame_leg_evidence`` as its
-    ``legs``, for up to ``max_frames`` frames spread evenly over the sequence."""
+    ``legs`` and ``frame_torso_evidence`` as its ``torso``, for up to ``max_frames`` frames spread
+    evenly over the sequence."""
     picks = np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)
     out = []
     for i in sorted(set(picks.tolist())):
         sil = body_silhouette(body, frames[i])
         out.append(replace(frame_hint_evidence(body, frames[i], silhouette=sil, **thresholds),
-                           legs=frame_leg_evidence(body, frames[i], silhouette=sil)))
+                           legs=frame_leg_evidence(body, frames[i], silhouette=sil),
+                           torso=frame_torso_evidence(body, frames[i], silhouette=sil)))
     return out
+
+
+def torso_standoff(evidence: list[HintEvidence]) -> float | None:
+    """The median torso standoff over the frames whose torso is testable, or None when none is."""
+    vals = [e.torso.standoff for e in evidence if e.torso is not None and e.torso.testable]
+    return float(np.median(vals)) if vals else None
 
 
 def hint_from_evidence(body: BodyModel, evidence: list[HintEvidence], *, min_share: float = 0.5) -> VolumeHint | None:
@@ -604,7 +674,9 @@ def hint_from_evidence(body: BodyModel, evidence: list[HintEvidence], *, min_sha
     between the legs (a walk's frames with the legs together test nothing; one frame where trousers
     look like cloth does not make a skirt): the hem is the median over the cloth frames (canonical
     height along the legs), the flare the median of their flares (clipped to 2-15 cm), the top the
-    waist. Otherwise wide trouser legs (``two_legs``) when at least ``min_share`` of the frames
+    waist; but when the cloth also stands off the torso (``torso_standoff`` of at least
+    ``MIN_TORSO_STANDOFF``: a coat, a dress) the top is ``torso_top_height`` and the standoff there
+    the torso's (clipped to 1.2-5 cm), so the layer covers the chest too. Otherwise wide trouser legs (``two_legs``) when at least ``min_share`` of the frames
     whose legs are testable show them wide (``LegEvidence``): hem and flare the medians the same
     way, the top the waist."""
     marks = landmark_heights(body)
@@ -614,7 +686,12 @@ def hint_from_evidence(body: BodyModel, evidence: list[HintEvidence], *, min_sha
         hem = float(np.median([e.hem_z for e in cloth]))
         flares = [e.flare for e in cloth if e.flare is not None]
         flare = float(np.clip(np.median(flares) if flares else 0.05, 0.02, 0.15))
-        return VolumeHint(top_z=marks["waist"], hem_z=min(hem, marks["hips"] - 0.1), standoff_hem=flare)
+        hem = min(hem, marks["hips"] - 0.1)
+        torso = torso_standoff(evidence)
+        if torso is not None and torso >= MIN_TORSO_STANDOFF:
+            return VolumeHint(top_z=torso_top_height(body), hem_z=hem, standoff_top=float(np.clip(torso, 0.012, 0.05)),
+                              standoff_hem=max(flare, float(np.clip(torso, 0.012, 0.05))))
+        return VolumeHint(top_z=marks["waist"], hem_z=hem, standoff_hem=flare)
     legs = [e.legs for e in evidence if e.legs is not None and e.legs.testable]
     wide = [e for e in legs if e.wide]
     if not wide or len(wide) < min_share * len(legs):
@@ -642,7 +719,7 @@ def neighbour_strain(means: torch.Tensor, edges: torch.Tensor, rest: torch.Tenso
     return ((d / rest - 1.0) ** 2).mean()
 
 
-LAYER_BONES = ("spine03", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R", "foot.L", "foot.R")
+LAYER_BONES = (*_TORSO_CHAIN, "upperarm01.L", "upperarm01.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R", "foot.L", "foot.R")
 
 
 def missing_layer_bones(body: BodyModel) -> list[str]:
