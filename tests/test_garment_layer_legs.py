@@ -4,8 +4,6 @@ wide legs from the masks (each leg's mask run against the body's own) and gives 
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 import torch
@@ -14,7 +12,7 @@ from matplotlib.path import Path as PolyPath
 from reconstruct.avatar.garment_layer import (GarmentLayer, VolumeHint, build_garment_layer, frame_leg_evidence,
                                               landmark_heights, volume_hint_from_masks)
 from reconstruct.body.parts import PART_INDEX
-from reconstruct.data.synthetic.generator import SyntheticConfig, build_synthetic_scene
+from hint_scenes import clothing_scenes, with_mask
 
 SMALL = dict(seed=0, num_frames=4, image_size=256, num_eval_azimuths=1, eval_frames=1, texture_size=256)
 
@@ -116,8 +114,7 @@ def test_two_legged_state_round_trip_and_old_states(body, legs):
 
 @pytest.fixture(scope="module")
 def scenes():
-    return {k: build_synthetic_scene(SyntheticConfig(clothing=k, **SMALL), progress=False)
-            for k in ("garment", "wide_trousers")}
+    return clothing_scenes(("garment", "wide_trousers"), **SMALL)
 
 
 def _leg_rows(body, frame) -> tuple[int, int]:
@@ -144,7 +141,7 @@ def test_wider_legs_in_the_mask_are_wide_trousers_by_the_width_they_add(scenes, 
     for k, wide in ((1, False), (4, True)):
         grown = m.copy()
         grown[top - 3:bottom + 1] = binary_dilation(m, np.ones((1, 2 * k + 1), bool))[top - 3:bottom + 1]
-        e = frame_leg_evidence(body, dataclasses.replace(f, mask=grown.astype(np.float32)))
+        e = frame_leg_evidence(body, with_mask(f, grown))
         assert e.testable and e.wide == wide, (k, e)
         if wide:
             assert abs(e.flare - k * metres_per_px) < 1.01 * metres_per_px, (e.flare, k * metres_per_px)
@@ -162,7 +159,7 @@ def test_legs_together_say_nothing(scenes, body):
         on = np.flatnonzero(m[r])
         if len(on):
             joined[r, on.min():on.max() + 1] = True
-    e = frame_leg_evidence(body, dataclasses.replace(f, mask=joined.astype(np.float32)))
+    e = frame_leg_evidence(body, with_mask(f, joined))
     assert not e.testable and not e.wide
 
 

@@ -5,8 +5,6 @@ otherwise."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 from scipy.ndimage import binary_dilation
@@ -18,8 +16,8 @@ from reconstruct.avatar.garment_layer import (MIN_TORSO_STANDOFF, HintEvidence, 
                                               volume_hint_from_masks)
 from reconstruct.body.parts import PART_INDEX
 from reconstruct.data.synthetic.garment_mesh import PROFILES
-from reconstruct.data.synthetic.generator import SyntheticConfig, build_synthetic_scene
 from reconstruct.data.synthetic.motion import walk_in_place
+from hint_scenes import clothing_scenes, with_mask
 
 # 256 px: a pixel is about 4 mm at the torso (at 128 px the dress's 1.2 cm would be under 1 px)
 SMALL = dict(seed=0, num_frames=2, image_size=256, num_eval_azimuths=1, eval_frames=1, texture_size=256)
@@ -27,7 +25,7 @@ SMALL = dict(seed=0, num_frames=2, image_size=256, num_eval_azimuths=1, eval_fra
 
 @pytest.fixture(scope="module")
 def scenes():
-    return {k: build_synthetic_scene(SyntheticConfig(clothing=k, **SMALL), progress=False) for k in ("garment", "coat")}
+    return clothing_scenes(("garment", "coat"), **SMALL)
 
 
 @pytest.fixture(scope="module")
@@ -43,10 +41,6 @@ def _metres_per_px(body, frame) -> float:
     return depth / float(frame.camera.K[0, 0])
 
 
-def _with_mask(frame, mask):
-    return dataclasses.replace(frame, mask=mask.astype(np.float32))
-
-
 def test_torso_standoff_is_what_the_mask_adds_past_the_body(scenes, body):
     f = scenes["garment"].frames[0]
     tight = frame_torso_evidence(body, f)
@@ -55,7 +49,7 @@ def test_torso_standoff_is_what_the_mask_adds_past_the_body(scenes, body):
     m = np.asarray(f.mask) > 0.5
     for k in (2, 4):  # the mask grown sideways by k pixels on each side
         grown = binary_dilation(m, structure=np.ones((1, 3), bool), iterations=k)
-        e = frame_torso_evidence(body, _with_mask(f, grown))
+        e = frame_torso_evidence(body, with_mask(f, grown))
         assert e.testable
         assert abs((e.standoff - tight.standoff) - k * mpp) < 0.5 * mpp, (k, e.standoff, tight.standoff, mpp)
 
@@ -74,12 +68,12 @@ def test_an_arm_against_the_torso_in_a_few_rows_does_not_decide(scenes, body):
     for r in few:
         right = np.flatnonzero(m[r, :int(uv[0, 0]) + 40]).max() if m[r].any() else int(uv[0, 0])
         arm[r, right:right + 8] = True
-    e = frame_torso_evidence(body, _with_mask(f, arm))
+    e = frame_torso_evidence(body, with_mask(f, arm))
     assert e.testable and abs(e.standoff - tight.standoff) < 0.003, (e, tight)
     # the mask merged with a wide block on every torso row: no row counts, nothing to test
     block = m.copy()
     block[r0 - 10:r1 + 10, :] = True
-    assert not frame_torso_evidence(body, _with_mask(f, block)).testable
+    assert not frame_torso_evidence(body, with_mask(f, block)).testable
 
 
 def test_coat_raises_the_layer_to_the_chest_with_its_standoff(scenes, body):
@@ -90,8 +84,8 @@ def test_coat_raises_the_layer_to_the_chest_with_its_standoff(scenes, body):
     assert abs(hint.standoff_top - PROFILES["coat"].standoff_top) < 0.008, hint.standoff_top
 
 
-def _cloth(torso: TorsoEvidence | None, legs: LegEvidence | None = None) -> HintEvidence:
-    return HintEvidence(True, True, hem_z=-0.45, flare=0.07, drop=0.3, legs=legs, torso=torso)
+def _cloth(torso: TorsoEvidence | None) -> HintEvidence:
+    return HintEvidence(True, True, hem_z=-0.45, flare=0.07, drop=0.3, torso=torso)
 
 
 def test_hint_top_follows_the_torso_evidence(body):
@@ -120,8 +114,7 @@ def test_the_layer_over_the_chest_stands_off_the_torso_and_moves_with_it(body):
     P = layer.positions.numpy()
     assert P[:, 2].max() == pytest.approx(hint.top_z, abs=1e-4)
     v = body.canonical_vertices.numpy()
-    parts = body.vertex_parts.numpy() if hasattr(body.vertex_parts, "numpy") else np.asarray(body.vertex_parts)
-    torso = v[parts == PART_INDEX["torso"]]
+    torso = v[body.vertex_parts == PART_INDEX["torso"]]
     chest = P[(P[:, 2] > m["waist"] + 0.05) & (P[:, 2] < hint.top_z - 0.03)]
     d, _ = cKDTree(torso).query(chest)
     # off the torso by at least most of the standoff all round (the hull spans hollows: more there)

@@ -11,15 +11,15 @@ import pytest
 import torch
 
 from reconstruct.avatar.garment_layer import VolumeHint, build_garment_layer, volume_hint_from_masks
-from reconstruct.data.synthetic.generator import SyntheticConfig, build_synthetic_scene
 from reconstruct.data.synthetic.motion import walk_in_place
+from hint_scenes import clothing_scenes, with_mask
 
 SMALL = dict(seed=0, num_frames=4, image_size=128, num_eval_azimuths=1, eval_frames=1, texture_size=256)
 
 
 @pytest.fixture(scope="module")
 def scenes():
-    return {k: build_synthetic_scene(SyntheticConfig(clothing=k, **SMALL), progress=False) for k in ("garment", "skirt")}
+    return clothing_scenes(("garment", "skirt"), **SMALL)
 
 
 @pytest.fixture(scope="module")
@@ -78,10 +78,6 @@ def test_hint_rejects_bad_heights():
         VolumeHint(top_z=-0.5, hem_z=0.1)
 
 
-def _with_mask(frame, mask):
-    return dataclasses.replace(frame, mask=mask.astype(np.float32))
-
-
 def test_hint_ignores_a_sliver_at_the_crotch_and_a_patch_at_the_ankles(scenes, body):
     """Tight trousers on a body fitted with its crotch a little high cover the body's gap for a few
     centimetres below the crotch; feet touching cover it at the ankles: neither is cloth."""
@@ -97,17 +93,17 @@ def test_hint_ignores_a_sliver_at_the_crotch_and_a_patch_at_the_ankles(scenes, b
     cut = first + int(0.05 / metres_per_px) + 1
     sliver = m_tight.copy()
     sliver[:cut] |= m_skirt[:cut]
-    e = frame_hint_evidence(body, _with_mask(tight, sliver))
+    e = frame_hint_evidence(body, with_mask(tight, sliver))
     assert e.testable and not e.cloth, e
     # and the same down past the hem: cloth again (the test above is not vacuous)
-    assert frame_hint_evidence(body, _with_mask(tight, m_tight | m_skirt)).cloth
+    assert frame_hint_evidence(body, with_mask(tight, m_tight | m_skirt)).cloth
     # the gap filled only over the lowest rows of the legs (feet together): not cloth
     rows = np.flatnonzero(m_tight.any(1))
     ankles = m_tight.copy()
     low = slice(rows.max() - 6, rows.max() - 1)
     cols = np.flatnonzero(m_tight[low].any(0))
     ankles[low, cols.min():cols.max() + 1] = True
-    e = frame_hint_evidence(body, _with_mask(tight, ankles))
+    e = frame_hint_evidence(body, with_mask(tight, ankles))
     assert not e.cloth, e
 
 
@@ -134,5 +130,5 @@ def test_hint_flare_is_the_skirts_and_a_hand_beside_it_is_not_cloth(scenes, body
     right = np.flatnonzero(m[hem - 2]).max()
     hand = m.copy()
     hand[hem - 6:hem + 1, right + 3:right + 7] = True  # apart from the cloth by two background pixels
-    e2 = frame_hint_evidence(body, _with_mask(f, hand))
+    e2 = frame_hint_evidence(body, with_mask(f, hand))
     assert e2.cloth and e2.flare == e.flare, (e.flare, e2.flare)

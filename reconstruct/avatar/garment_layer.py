@@ -631,19 +631,18 @@ def frame_torso_evidence(body: BodyModel, frame, *, rows_per_metre: float = 100.
     metres_per_px = float(depth[0]) / float(frame.camera.fx)
     top = torso_top_height(body)
     heights = np.linspace(cz[0], top, max(2, int(round((top - cz[0]) * rows_per_metre)) + 1))
-    standoffs, asked = [], 0
+    standoffs = []
     for z in heights:
         r, x = int(round(np.interp(z, cz, uv[:, 1]))), int(round(np.interp(z, cz, uv[:, 0])))
         if not 0 <= r < mask.shape[0]:
             continue
-        asked += 1
         m, b = _run_around(mask[r], x), _run_around(sil[r], x)
         if m is None or b is None:
             continue
         s = ((m[1] - m[0]) - (b[1] - b[0])) / 2 * metres_per_px
         if s < max_standoff:
             standoffs.append(s)
-    if not asked or len(standoffs) < min_rows * len(heights):
+    if not standoffs or len(standoffs) < min_rows * len(heights):
         return TorsoEvidence(False)
     return TorsoEvidence(True, float(np.median(standoffs)))
 
@@ -689,8 +688,8 @@ def hint_from_evidence(body: BodyModel, evidence: list[HintEvidence], *, min_sha
         hem = min(hem, marks["hips"] - 0.1)
         torso = torso_standoff(evidence)
         if torso is not None and torso >= MIN_TORSO_STANDOFF:
-            return VolumeHint(top_z=torso_top_height(body), hem_z=hem, standoff_top=float(np.clip(torso, 0.012, 0.05)),
-                              standoff_hem=max(flare, float(np.clip(torso, 0.012, 0.05))))
+            top = float(np.clip(torso, 0.012, 0.05))
+            return VolumeHint(top_z=torso_top_height(body), hem_z=hem, standoff_top=top, standoff_hem=max(flare, top))
         return VolumeHint(top_z=marks["waist"], hem_z=hem, standoff_hem=flare)
     legs = [e.legs for e in evidence if e.legs is not None and e.legs.testable]
     wide = [e for e in legs if e.wide]
@@ -719,7 +718,8 @@ def neighbour_strain(means: torch.Tensor, edges: torch.Tensor, rest: torch.Tenso
     return ((d / rest - 1.0) ** 2).mean()
 
 
-LAYER_BONES = (*_TORSO_CHAIN, "upperarm01.L", "upperarm01.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R", "foot.L", "foot.R")
+LAYER_BONES = (*_TORSO_CHAIN, "upperarm01.L", "upperarm01.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L",
+               "lowerleg01.R", "foot.L", "foot.R")
 
 
 def missing_layer_bones(body: BodyModel) -> list[str]:
