@@ -51,20 +51,21 @@ def test_seen_only_off_the_person_becomes_unseen(tiny_scene, tiny_config):
     for tgt in t.data.targets.values():
         tgt.mask[:, tgt.mask.shape[1] // 2:] = 0.0
     on_left = person_first_hits(t.state, t.data) > 0
-    k = keep_seen_on_person(t.state, t.data)
+    k = keep_seen_on_person(t.state, t.data).dropped
     assert k == int((before & ~on_left).sum()) and k > 0
     assert torch.equal(t.state.seen, before & on_left)
     # with no person anywhere nothing stays seen
     for tgt in t.data.targets.values():
         tgt.mask.zero_()
     still = int(t.state.seen.sum())
-    assert still > 0 and keep_seen_on_person(t.state, t.data) == still
+    assert still > 0 and keep_seen_on_person(t.state, t.data).dropped == still
     assert not t.state.seen.any()
 
 
 def test_end_of_stage_one_recounts_only_when_asked(tiny_scene, tiny_config):
-    on = _trained(tiny_scene, tiny_config, fill_unseen=False)
-    off = _trained(tiny_scene, tiny_config, fill_unseen=False, seen_on_person=False)
+    # first hits only (the blend weights' additions: test_seen_blend_weights.py)
+    on = _trained(tiny_scene, tiny_config, fill_unseen=False, seen_min_weight=None)
+    off = _trained(tiny_scene, tiny_config, fill_unseen=False, seen_on_person=False, seen_min_weight=None)
     assert torch.equal(on.state.seen, off.state.seen)  # training never reads the flags
     for t in (on, off):
         for tgt in t.data.targets.values():

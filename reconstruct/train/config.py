@@ -104,6 +104,10 @@ class Stage1Config(StageSettings):
     # the person in some training frame (train/seen_recount.py): Gaussians seen only off the
     # silhouette are no colour source and are filled
     seen_on_person: bool = True
+    # ... and a Gaussian that, facing the camera, blends at least this many pixels' worth of weight
+    # into the person's pixels (summed over the training frames, most of its weight on the person)
+    # is seen too, first hit or not: the images fitted it (train/seen_recount.py; None: first hits only)
+    seen_min_weight: float | None = 0.05
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # each given-view step composites its target on a uniformly random colour and renders over the
@@ -141,6 +145,8 @@ class Stage1Config(StageSettings):
         if self.lambda_layer_cover < 0 or self.layer_cover_inset < 0:
             raise ValueError(f"need lambda_layer_cover >= 0 and layer_cover_inset >= 0, found "
                              f"{self.lambda_layer_cover} and {self.layer_cover_inset}")
+        if self.seen_min_weight is not None and self.seen_min_weight <= 0:
+            raise ValueError(f"seen_min_weight must be > 0 (pixels) or None, found {self.seen_min_weight}")
         if self.fill_unseen_ring < 0:
             raise ValueError(f"fill_unseen_ring must be >= 0, found {self.fill_unseen_ring}")
         if not 0 <= self.lr_decay_start < 1 or not 0 < self.lr_final <= 1:
@@ -157,7 +163,7 @@ class Stage1Config(StageSettings):
         """The settings before the Stage I fidelity work (GaussianAvatar's schedule, every Gaussian
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False,
-                    seen_on_person=False, random_background=False, avatar=AvatarConfig.paper())
+                    seen_on_person=False, seen_min_weight=None, random_background=False, avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
 
     @classmethod
@@ -171,6 +177,7 @@ class Stage1Config(StageSettings):
         d.setdefault("fill_unseen", False)  # recorded before Stage I filled its unseen side
         d.setdefault("random_background", False)  # recorded before training on random backgrounds
         d.setdefault("seen_on_person", False)  # recorded before the seen flags were recounted on the person
+        d.setdefault("seen_min_weight", None)  # recorded before the recount counted blended Gaussians
         d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
         d.setdefault("lambda_layer_cover", 0.0)  # recorded before the layer's cover prior existed
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:

@@ -11,9 +11,9 @@ import numpy as np
 
 from .config import Stage1Config, StageSettings
 from ..appearance.wrap_fill import grazing_rule_for
-from .seen_recount import keep_seen_on_person
+from .seen_recount import keep_seen_on_person, person_coverage
 from .steps import GivenViewStep, TrainingStep
-from .unseen_fill import fill_unseen_colors, fill_unseen_layer_opacity, layer_faced_training
+from .unseen_fill import fill_unseen_colors, fill_unseen_layer_opacity, layer_faced_training, layer_reached
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
@@ -75,18 +75,29 @@ class Stage1Plan(StagePlan):
         """The seen flags are recounted on the person (``seen_on_person``, train/seen_recount.py),
         then the never-seen Gaussians take the wrap-around fill's colours and, on a garment layer, the
         trained cloth's opacity at their height (``fill_unseen``)."""
-        state, notes = context.state, []
+        state, notes, s = context.state, [], self.settings
+        # the avatar's blend weights on the training frames, once, for the recount and the layer
+        coverage = (person_coverage(state, context.data, hit_threshold=s.hit_threshold, weights=True)
+                    if s.seen_min_weight is not None and (s.seen_on_person or s.fill_unseen) else None)
         if self.settings.seen_on_person:
-            k = keep_seen_on_person(state, context.data, hit_threshold=self.settings.hit_threshold)
-            if k:
-                notes.append(f"{k} Gaussians seen only off the person's silhouette are unseen")
+            k = keep_seen_on_person(state, context.data, hit_threshold=s.hit_threshold,
+                                    min_weight=s.seen_min_weight, coverage=coverage)
+            if k.dropped:
+                notes.append(f"{k.dropped} Gaussians seen only off the person's silhouette are unseen")
+            if k.added:
+                notes.append(f"{k.added} Gaussians the images blended into the person (no first hit) are seen")
         if self.settings.fill_unseen:
             n = fill_unseen_colors(state, keep_ring=self.settings.fill_unseen_ring,
                                    grazing_rule=grazing_rule_for(self.settings))
             if n:
                 notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
-            n = (fill_unseen_layer_opacity(state, layer_faced_training(state, context.data))
-                if state.model.layer is not None else 0)
+            if state.model.layer is not None:
+                trained = layer_faced_training(state, context.data)
+                if coverage is not None:
+                    trained |= layer_reached(state, coverage.total, s.seen_min_weight)
+                n = fill_unseen_layer_opacity(state, trained)
+            else:
+                n = 0
             if n:
                 notes.append(f"{n} garment-layer Gaussians no training camera faced took the trained cloth's opacity at their height")
         return "Stage I: " + "; ".join(notes) if notes else None

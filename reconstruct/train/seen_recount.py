@@ -15,11 +15,26 @@ Gaussian stays seen only if it is the first hit (facing the camera, as in ``mark
 least one pixel the mask gives to the person (mask > ``PERSON``). The others become unseen and are
 repainted by the fill like the rest of the unseen side. Training itself never reads the flags, so
 Stage I's steps are unchanged; painted visibility (edits) still overrides the result.
+
+First hits alone miss much of what the images fitted. A pixel is the blend of every Gaussian along
+its ray up to saturation, and only one of them is its first hit: with few training views (one
+photo) most of the Gaussians that draw the person are never a first hit, the fill repainted them
+as unseen, and the training view itself changed (a coat photo, 450 steps: 13,220 such Gaussians
+with at least 0.05 px of blend weight on the person; the photo's PSNR inside the mask 25.9 ->
+20.6 dB after the fill). With ``min_weight`` the recount also marks seen every Gaussian that
+blends at least ``min_weight`` pixels' worth of weight into the person's pixels (summed over the
+training frames) with at least ``MIN_PERSON_SHARE`` of all its weight on the person (not one that
+sticks out past the silhouette). There is no facing test here: without normal maps to fit, the
+learned normals of many such Gaussians turn away from the camera (the coat photo: 41 % of them),
+and whatever their normal, the image fitted their colour. The weights are the gradient of the
+person-masked image with respect to each Gaussian's colour: d(sum of pixels)/d(colour) is the sum
+of alpha times transmittance over the pixels it touches.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import dataclasses
+from typing import TYPE_CHECKING, NamedTuple
 
 import torch
 
@@ -31,28 +46,80 @@ if TYPE_CHECKING:
     from .data import TrainingData
 
 PERSON = 0.5  # a pixel belongs to the person where its mask exceeds this
+MIN_PERSON_SHARE = 0.5  # of a Gaussian's blend weight that must land on the person for it to count
 
 
-@torch.no_grad()
+@dataclasses.dataclass
+class PersonCoverage:
+    """What the training frames show of each Gaussian, on the person's pixels."""
+    first_hits: torch.Tensor  # (N,) int64: person pixels it is the facing first hit of
+    weight: torch.Tensor | None = None  # (N,) float64: blend weight on person pixels
+    total: torch.Tensor | None = None  # (N,) float64: blend weight on every pixel of the rendered frames
+
+
+class SeenRecount(NamedTuple):
+    dropped: int  # seen, but the first hit of no person pixel: now unseen
+    added: int  # not seen, but blended into the person's pixels: now seen
+
+
+def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: float = 0.5,
+                    weights: bool = False) -> PersonCoverage:
+    """Render the avatar as it is now (pose corrections included) from every training frame once:
+    the facing first hits on person pixels and, with ``weights``, the blend weights."""
+    n = state.num_gaussians
+    counts = torch.zeros(n, dtype=torch.long)
+    weight = torch.zeros(n, dtype=torch.float64) if weights else None
+    total = torch.zeros(n, dtype=torch.float64) if weights else None
+    for i in data.frames:
+        tgt = data.targets[i]
+        with torch.no_grad():
+            posed = state.posed(i)
+        person = tgt.mask > PERSON
+        if weights:  # colours as a leaf: red carries the person-masked sum, green the whole image's
+            probe = torch.zeros_like(posed.colors).requires_grad_(True)
+            r = render_avatar(dataclasses.replace(posed, colors=probe), tgt.camera, data.background, normals=False,
+                              first_hit=True, hit_threshold=hit_threshold)
+            m = person.to(r.rgb.device, r.rgb.dtype)
+            ((r.rgb[..., 0] * m).sum() + r.rgb[..., 1].sum()).backward()
+            g = probe.grad.detach().cpu().double()
+            weight += g[:, 0]
+            total += g[:, 1]
+        else:
+            with torch.no_grad():
+                r = render_avatar(posed, tgt.camera, data.background, normals=False, first_hit=True,
+                                  hit_threshold=hit_threshold)
+        hit = r.first_hit.detach()
+        hits = facing_hits(hit[person.to(hit.device) & (hit >= 0)], posed, tgt.camera)
+        counts += torch.bincount(hits.cpu(), minlength=n)
+    return PersonCoverage(counts, weight, total)
+
+
 def person_first_hits(state: AvatarState, data: TrainingData, *, hit_threshold: float = 0.5) -> torch.Tensor:
     """(N,) how many pixels of the person, over the training frames, each Gaussian is the first hit
     of while facing the camera (the avatar as it is now, pose corrections included)."""
-    n = state.num_gaussians
-    counts = torch.zeros(n, dtype=torch.long)
-    for i in data.frames:
-        tgt = data.targets[i]
-        posed = state.posed(i)
-        r = render_avatar(posed, tgt.camera, data.background, normals=False, first_hit=True,
-                          hit_threshold=hit_threshold)
-        hits = facing_hits(r.first_hit[(tgt.mask > PERSON) & (r.first_hit >= 0)], posed, tgt.camera)
-        counts += torch.bincount(hits.cpu(), minlength=n)
-    return counts
+    return person_coverage(state, data, hit_threshold=hit_threshold).first_hits
 
 
-def keep_seen_on_person(state: AvatarState, data: TrainingData, *, hit_threshold: float = 0.5) -> int:
+def blended_on_person(coverage: PersonCoverage, min_weight: float, *, min_share: float = MIN_PERSON_SHARE) -> torch.Tensor:
+    """(N,) bool: blend weight on the person of at least ``min_weight`` pixels and at least
+    ``min_share`` of the Gaussian's whole weight."""
+    if coverage.weight is None:
+        raise ValueError("blended_on_person: the coverage was computed without weights")
+    w = coverage.weight
+    return (w >= min_weight) & (w >= min_share * coverage.total)
+
+
+def keep_seen_on_person(state: AvatarState, data: TrainingData, *, hit_threshold: float = 0.5,
+                        min_weight: float | None = None, coverage: PersonCoverage | None = None) -> SeenRecount:
     """Unmark the seen Gaussians that are the first hit of no person pixel in any training frame;
-    returns how many were unmarked."""
-    on_person = person_first_hits(state, data, hit_threshold=hit_threshold) > 0
+    with ``min_weight``, mark seen those ``blended_on_person``. Returns how many were unmarked and
+    how many marked. ``coverage``: ``person_coverage`` of the avatar as it is, if already computed."""
+    cov = coverage or person_coverage(state, data, hit_threshold=hit_threshold, weights=min_weight is not None)
+    on_person = cov.first_hits > 0
+    if min_weight is not None:
+        on_person |= blended_on_person(cov, min_weight)
     drop = state.seen & ~on_person
+    add = on_person & ~state.seen if min_weight is not None else torch.zeros_like(on_person)
     state.seen &= on_person
-    return int(drop.sum())
+    state.seen |= add
+    return SeenRecount(int(drop.sum()), int(add.sum()))
