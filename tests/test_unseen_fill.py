@@ -83,8 +83,13 @@ def test_trainer_fills_once_at_the_end_of_stage1(tiny_scene, tiny_config, tmp_pa
         t.step()
     assert calls == []
     t.step()
-    # trained on random backgrounds: grazing seen colours are sources (grazing_rule_for)
-    assert t.done and calls == [{"keep_ring": tiny_config.fill_unseen_ring, "grazing_rule": False}]
+    # trained on random backgrounds: grazing seen colours are sources (grazing_rule_for); those
+    # seen by their blend weight alone are not (a bool per Gaussian)
+    assert t.done and len(calls) == 1
+    not_sources = calls[0].pop("not_sources")
+    assert calls == [{"keep_ring": tiny_config.fill_unseen_ring, "grazing_rule": False}]
+    assert not_sources.dtype == torch.bool and not_sources.shape == (t.state.num_gaussians,)
+    assert not (not_sources & ~t.state.seen).any()
     t.step()  # a step past the end (the studio's single step) does not fill again
     assert len(calls) == 1
 

@@ -104,10 +104,11 @@ class Stage1Config(StageSettings):
     # the person in some training frame (train/seen_recount.py): Gaussians seen only off the
     # silhouette are no colour source and are filled
     seen_on_person: bool = True
-    # ... and a Gaussian that, facing the camera, blends at least this many pixels' worth of weight
-    # into the person's pixels (summed over the training frames, most of its weight on the person)
-    # is seen too, first hit or not: the images fitted it (train/seen_recount.py; None: first hits only)
-    seen_min_weight: float | None = 0.05
+    # ... and a Gaussian that blends at least this many pixels' worth of weight into the person's
+    # pixels of one training frame (most of its weight on the person) is seen too, first hit or
+    # not: that frame fitted it, and the fill would change it (train/seen_recount.py; None: first
+    # hits only)
+    seen_min_weight: float | None = 0.25
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # each given-view step composites its target on a uniformly random colour and renders over the

@@ -79,6 +79,7 @@ class Stage1Plan(StagePlan):
         # the avatar's blend weights on the training frames, once, for the recount and the layer
         coverage = (person_coverage(state, context.data, hit_threshold=s.hit_threshold, weights=True)
                     if s.seen_min_weight is not None and (s.seen_on_person or s.fill_unseen) else None)
+        blended_only = None
         if self.settings.seen_on_person:
             k = keep_seen_on_person(state, context.data, hit_threshold=s.hit_threshold,
                                     min_weight=s.seen_min_weight, coverage=coverage)
@@ -86,15 +87,16 @@ class Stage1Plan(StagePlan):
                 notes.append(f"{k.dropped} Gaussians seen only off the person's silhouette are unseen")
             if k.added:
                 notes.append(f"{k.added} Gaussians the images blended into the person (no first hit) are seen")
+            blended_only = k.blended_only
         if self.settings.fill_unseen:
             n = fill_unseen_colors(state, keep_ring=self.settings.fill_unseen_ring,
-                                   grazing_rule=grazing_rule_for(self.settings))
+                                   grazing_rule=grazing_rule_for(self.settings), not_sources=blended_only)
             if n:
                 notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
             if state.model.layer is not None:
                 trained = layer_faced_training(state, context.data)
                 if coverage is not None:
-                    trained |= layer_reached(state, coverage.total, s.seen_min_weight)
+                    trained |= layer_reached(state, coverage.total_max, s.seen_min_weight)
                 n = fill_unseen_layer_opacity(state, trained)
             else:
                 n = 0

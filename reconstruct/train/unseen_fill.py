@@ -51,12 +51,16 @@ _COLOR_MARGIN = 1e-3
 
 
 @torch.no_grad()
-def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int = 0, grazing_rule: bool = True) -> int:
+def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int = 0, grazing_rule: bool = True,
+                       not_sources: torch.Tensor | None = None) -> int:
     """Set the colour residual of every Gaussian the painted seen flags call unseen so that it
     decodes to the wrap-around fill's colour. Returns how many Gaussians were filled (0 when the
     avatar has no colour residual, sees nothing or sees everything). ``grazing_rule``: seen
     Gaussians seen at grazing incidence only are no colour source (``WrapFillConfig.max_seen_angle_deg``;
-    for avatars trained on one fixed background, whose silhouette colours are darkened by it)."""
+    for avatars trained on one fixed background, whose silhouette colours are darkened by it).
+    ``not_sources``: (N,) bool, seen Gaussians that keep their colour but are no colour source
+    either (those seen by their blend weight alone, ``SeenRecount.blended_only``: many sit at the
+    silhouette, where a photo's matting leaves a light fringe)."""
     model = state.model
     cfg = model.config
     if not cfg.color_residual:
@@ -66,9 +70,12 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     if not bool(seen.any()) or not bool(unseen.any()):
         return 0
     neighbours = model.neighbours()  # a garment layer's Gaussians over its own grid, one more part
-    trusted = torch.as_tensor(erode(seen.numpy(), neighbours, erosion))
+    sources = seen if not_sources is None else seen & ~torch.as_tensor(not_sources, dtype=torch.bool).cpu()
+    if not bool(sources.any()):
+        sources = seen
+    trusted = torch.as_tensor(erode(sources.numpy(), neighbours, erosion))
     if not bool(trusted.any()):
-        trusted = seen
+        trusted = sources
     colors = model.canonical(None).colors.detach().cpu()
     filled = wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted, colors, neighbours,
                               normals=model.base_normals.cpu() if grazing_rule else None, no_mirror=state.edits.redone)
@@ -106,21 +113,22 @@ def layer_faced_training(state: AvatarState, data: TrainingData, *, min_cos: flo
     return faced
 
 
-def layer_reached(state: AvatarState, total_weight: torch.Tensor, min_weight: float) -> torch.Tensor:
-    """(M,) bool: the garment-layer Gaussians the training rays reached: their blend weight over
-    the training frames (``PersonCoverage.total``, all N+M Gaussians), divided by their opacity, is
+def layer_reached(state: AvatarState, total_max: torch.Tensor, min_weight: float) -> torch.Tensor:
+    """(M,) bool: the garment-layer Gaussians the training rays reached: their blend weight in one
+    training frame (``PersonCoverage.total_max``, all N+M Gaussians), divided by their opacity, is
     at least ``min_weight`` pixels. Weight over opacity is the sum of transmittance times footprint,
     what the Gaussian would blend were it opaque: a Gaussian training made transparent in front of
     the person or off it is reached (its opacity was set), one behind opaque cloth is not. Unlike
     ``layer_faced_training`` it does not read the learned normals, which turn freely where no
-    normal maps pin them (one photo: 501 of 4,048 layer Gaussians faced the camera, 2,455 were
-    reached)."""
+    normal maps pin them (one photo: 501 of 4,048 layer Gaussians faced the camera).
+    (Alpha is clamped at 0.99 in the rasterizer; the reach of a nearly opaque Gaussian is read a
+    little low, never high.)"""
     model = state.model
     N = model.num_body
     if model.layer is None:
         return torch.zeros(0, dtype=torch.bool)
     opacity = model.opacities().detach().cpu().double()[N:]
-    return (total_weight[N:].double() / opacity.clamp_min(1e-6)) >= min_weight
+    return (total_max[N:].double() / opacity.clamp_min(1e-6)) >= min_weight
 
 
 @torch.no_grad()
