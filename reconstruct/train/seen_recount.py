@@ -24,8 +24,8 @@ draw at least a quarter pixel of it; the photo's PSNR inside the mask fell 25.9 
 the fill). With ``min_weight`` the recount also marks seen every Gaussian that blends at least
 ``min_weight`` pixels' worth of weight into the person's pixels of ONE training frame, with at
 least ``MIN_PERSON_SHARE`` of all its weight (over the frames) on the person, not off the
-silhouette. One frame, not the sum over frames, and only the person's pixels
-``INSET`` px or more inside the silhouette: in a 60-frame video, 6,378 Gaussians that are no first
+silhouette, in a frame that sees its surface from outside. One frame, not the sum over frames, and
+only the person's pixels ``INSET`` px or more inside the silhouette: in a 60-frame video, 6,378 Gaussians that are no first
 hit blend 1.3 px over the frames (median) but 0.05 px in their best frame, nearly all at grazing
 incidence at the silhouette; their colours are fitted to the edge's blend, the fill's are better,
 and keeping them cost the tight benchmark 2 dB unseen (seed 0: 29.25 -> 27.26 dB with a 0.05 px
@@ -36,10 +36,15 @@ to the coat's), and a facing test on it kept the photo at 22.6 dB.
 The Gaussians seen by their weight alone keep their colour through the fill but are no colour
 source of it (``SeenRecount.blended_only``): many sit at the silhouette at grazing incidence, where
 a photo's matting leaves a light fringe, and as sources they streaked the back of that coat with
-white. There is no facing test on the learned normals either: without normal maps to fit, many
-of them turn away from the camera (the coat photo: 41 % of the Gaussians that draw it). The weights are the gradient of the person-masked image with respect to
-each Gaussian's colour: d(sum of pixels)/d(colour) is the sum of alpha times transmittance over
-the pixels it touches.
+white. A frame counts for a Gaussian only where it sees the Gaussian's surface from outside (the
+posed body or layer normal, not the learned one, faces the camera): through a coat's front opening
+the camera sees the inside of the layer's back panel, whose trained colours are the inside's. There
+is no facing test on the learned normals: without normal maps to fit, many of them turn away from
+the camera (the coat photo: 41 % of the Gaussians that draw it).
+
+The weights are the gradient of the image with respect to a zero colour probe:
+d(sum of pixels)/d(colour) is the sum of alpha times transmittance over the pixels a Gaussian
+touches.
 """
 
 from __future__ import annotations
@@ -114,7 +119,6 @@ def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: fl
             outside = ((centre - posed.means) * surface_normals).sum(1).cpu() >= 0  # not seen from within
             torch.maximum(weight_max, g[:, 2] * outside, out=weight_max)
             torch.maximum(total_max, g[:, 1] * outside, out=total_max)
-
         else:
             with torch.no_grad():
                 r = render_avatar(posed, tgt.camera, data.background, normals=False, first_hit=True,
