@@ -141,7 +141,18 @@ class AvatarState:
 
     def posed(self, frame: int) -> PosedGaussians:
         """The avatar in observation space at video frame ``frame``."""
-        return self.edits.apply_posed(self.model.pose(self.canonical(frame), self.frame_transforms(frame)))
+        return self.posed_with_surface_normals(frame, surface=False)[0]
+
+    def posed_with_surface_normals(self, frame: int, *, surface: bool = True) -> tuple[PosedGaussians, torch.Tensor | None]:
+        """``posed(frame)`` and, with ``surface``, the (N,3) normals of the surface each Gaussian sits
+        on -- the body's or the garment layer's, posed the same way -- instead of the learned ones
+        (which turn freely where no normal map pins them); one decode for both."""
+        canonical, transforms = self.canonical(frame), self.frame_transforms(frame)
+        posed = self.edits.apply_posed(self.model.pose(canonical, transforms))
+        if not surface:
+            return posed, None
+        base = dataclasses.replace(canonical, normals=self.model.base_normals)
+        return posed, self.model.pose(base, transforms).normals
 
     def posed_at(self, pose: BodyPose) -> PosedGaussians:
         """The avatar at any pose of its body (novel poses, motion files)."""

@@ -80,7 +80,7 @@ class Stage1Plan(StagePlan):
         coverage = (person_coverage(state, context.data, hit_threshold=s.hit_threshold, weights=True)
                     if s.seen_min_weight is not None and (s.seen_on_person or s.fill_unseen) else None)
         blended_only = None
-        if self.settings.seen_on_person:
+        if s.seen_on_person:
             k = keep_seen_on_person(state, context.data, hit_threshold=s.hit_threshold,
                                     min_weight=s.seen_min_weight, coverage=coverage)
             if k.dropped:
@@ -88,9 +88,9 @@ class Stage1Plan(StagePlan):
             if k.added:
                 notes.append(f"{k.added} Gaussians the images blended into the person (no first hit) are seen")
             blended_only = k.blended_only
-        if self.settings.fill_unseen:
-            n = fill_unseen_colors(state, keep_ring=self.settings.fill_unseen_ring,
-                                   grazing_rule=grazing_rule_for(self.settings), not_sources=blended_only)
+        if s.fill_unseen:
+            n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
+                                   not_sources=blended_only)
             if n:
                 notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
             if state.model.layer is not None:

@@ -95,14 +95,7 @@ def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: fl
     for i in data.frames:
         tgt = data.targets[i]
         with torch.no_grad():
-            if weights:  # the surface's own normals posed as well (the learned ones turn freely)
-                model, transforms = state.model, state.frame_transforms(i)
-                canonical = state.canonical(i)
-                posed = state.edits.apply_posed(model.pose(canonical, transforms))
-                surface_normals = model.pose(dataclasses.replace(canonical, normals=model.base_normals),
-                                             transforms).normals
-            else:
-                posed = state.posed(i)
+            posed, surface_normals = state.posed_with_surface_normals(i) if weights else (state.posed(i), None)
         person = tgt.mask > PERSON
         if weights:  # colours as a leaf: red carries the person-masked sum, green the whole image's,
             # blue the sum inside the silhouette's band
