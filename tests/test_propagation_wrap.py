@@ -177,3 +177,69 @@ def test_stage2_config_propagation_choices():
     Stage2Config(propagation="diffusion")
     with pytest.raises(ValueError, match="propagation"):
         Stage2Config(propagation="mirror")
+
+
+# ---------------------------------------------------------------------------------------------
+# a head seen from the front only (one photo): no seen Gaussian behind its centre
+
+
+def front_only_head(skin_sides=True):
+    """A head seen up to 80 degrees from the front: at face height the seen sides are skin (the
+    cheeks reach the silhouette), hair above 1.70 m all round. Returns pos, theta, seen, truth."""
+    pos, th = cylinder(radius=0.09, height=0.22, n_theta=72, n_z=44, z0=1.55)
+    deg = np.abs(np.degrees(th))
+    seen = deg <= 80
+    skin = (pos[:, 2] < 1.70) & (deg <= 80 if skin_sides else deg < 50)
+    return pos, th, seen, np.where(skin[:, None], SKIN, HAIR)
+
+
+def test_front_only_head_back_and_crown_take_the_hair():
+    pos, th, seen, truth = front_only_head()
+    parts = np.full(len(pos), PART_INDEX["head"])
+    col = np.where(seen[:, None], truth, 0.5)
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    back = ~seen
+    assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
+    np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
+    # without the hair rule the face's skin is carried round at face height: the case is real
+    off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(hair_min_share=1.1)).numpy()
+    low_back = back & (pos[:, 2] < 1.68)
+    assert np.linalg.norm(off[low_back] - SKIN, axis=1).mean() < 0.05
+
+
+def test_front_only_head_hat_over_hair_keeps_its_heights():
+    pos, th, seen, truth = front_only_head()
+    hat = pos[:, 2] > 1.74
+    truth[hat] = RED
+    parts = np.full(len(pos), PART_INDEX["head"])
+    out = wrap_fill_colors(pos, parts, seen, truth, None, WrapFillConfig(smooth_sweeps=0)).numpy()
+    back = ~seen
+    np.testing.assert_allclose(out[back & (pos[:, 2] > 1.75)], np.tile(RED, ((back & (pos[:, 2] > 1.75)).sum(), 1)),
+                               atol=1e-6)
+    np.testing.assert_allclose(out[back & (pos[:, 2] < 1.73)], np.tile(HAIR, ((back & (pos[:, 2] < 1.73)).sum(), 1)),
+                               atol=1e-6)
+
+
+def test_front_only_bald_head_with_glasses_and_lips_stays_skin():
+    # no hair to take: the rule stands down (glasses reaching the temples and the lips are too few
+    # to be hair) and the fill is exactly the one without the rule
+    pos, th, seen, _ = front_only_head()
+    deg = np.abs(np.degrees(th))
+    col = np.tile(SKIN, (len(pos), 1))
+    col[(np.abs(pos[:, 2] - 1.66) < 0.006) & (deg < 70)] = HAIR  # the glasses' frame and temples
+    col[(np.abs(pos[:, 2] - 1.60) < 0.006) & (deg < 15)] = RED  # the lips
+    parts = np.full(len(pos), PART_INDEX["head"])
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(hair_min_share=1.1)).numpy()
+    np.testing.assert_array_equal(out, off)
+
+
+def test_hair_as_light_as_the_skin_is_no_hair():
+    from reconstruct.appearance.hair import hair_sources
+    pos, th, seen, truth = front_only_head()
+    light = np.where(np.all(truth == HAIR, axis=1)[:, None], SKIN - 0.1, SKIN)  # within the contrast
+    src = np.flatnonzero(seen)
+    assert not hair_sources(pos[src], light[src], 0.0, contrast=0.15, min_share=0.1, k=8).any()
+    found = hair_sources(pos[src], truth[src], 0.0, contrast=0.15, min_share=0.1, k=8)
+    # the hair found is hair, and it is the rim of the seen head: all of the hair above the face
+    assert np.all(truth[src][found] == HAIR) and found.sum() == np.all(truth[src] == HAIR, axis=1).sum()

@@ -23,6 +23,8 @@ positions (the body faces -Y, +Z up):
    continue with their phase, while a colour found only in the middle of the front -- the chest
    emblem, the face's skin framed by hair -- is rejected and the low-frequency fill of step 2
    stands.
+   On the head, seen from the front only (fewer than ``k`` seen Gaussians behind its centre),
+   the back and the crown take the hair's colour instead (``hair.py``).
 4. **Smoothing.** A few Jacobi sweeps over the UV grid of the unseen Gaussians (seen ones fixed)
    remove single-texel noise from the median choices.
 
@@ -44,6 +46,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
+from .hair import hair_covered, hair_sources
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,12 @@ class WrapFillConfig:
     # of the head is the hair seen behind the ears, not the skin of the ears and cheeks at the
     # same height (which, carried round, would paint a band of face colour across the back)
     posterior_band_parts: tuple[str, ...] = ("head",)
+    # ... and when a head has fewer than ``k`` of those (one photo), its back and crown take the
+    # colour of the hair the front shows round the face (``hair.py``): rim Gaussians differing
+    # from the face's colour by more than ``hair_contrast`` in some channel, at least
+    # ``hair_min_share`` of the seen head
+    hair_contrast: float = 0.15
+    hair_min_share: float = 0.1
 
 
 def grazing_rule_for(stage1_settings) -> bool:
@@ -197,12 +206,21 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         both = _on_both_sides(band_pos, band_col, pos[members, 0].mean(), cfg)
         if both.sum() >= cfg.k:
             band_pos, band_col = band_pos[both], band_col[both]
+        covered = None
         if p < len(PART_NAMES) and PART_NAMES[p] in cfg.posterior_band_parts:
             behind = band_pos[:, 1] > pos[members, 1].mean()
             if behind.sum() >= cfg.k:
                 band_pos, band_col = band_pos[behind], band_col[behind]
+            else:
+                centre = np.array([pos[members, i].mean() for i in range(3)])
+                hair = hair_sources(src_pos, col[src], centre[0], contrast=cfg.hair_contrast,
+                                    min_share=cfg.hair_min_share, k=cfg.k)
+                if hair.any():
+                    covered = hair_covered(pos[todo], src_pos, hair, centre)
         # 2. low-frequency fill along the wrap direction (same height)
         low = _same_height_median(pos[todo], band_pos, band_col, cfg)
+        if covered is not None and covered.any():
+            low[covered] = _same_height_median(pos[todo][covered], src_pos[hair], col[src][hair], cfg)
         # 3. the mirrored colour, kept where the band shows that colour at a nearby height
         query = pos[todo].copy()
         query[:, 1] = 2 * pos[members, 1].mean() - query[:, 1]

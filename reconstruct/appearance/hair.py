@@ -1,0 +1,84 @@
+"""The hair of a head seen only from the front: which seen Gaussians of the head show it, and which
+unseen ones it covers. Used by the wrap-around fill (``wrap_fill``) when the head has too few
+seen Gaussians behind its centre for the posterior band (one photo, or a video that never turned).
+
+Why. From the front the head is a face framed by hair (or a hat): hair at the top and the sides,
+skin in the middle. The fill carries the seen colours round at the same height, so at face height
+it carried the face -- a bald, skin-coloured back of the head, with the lips' red wrapped round it
+as a band (measured on photos of a woman with a beret and long dark hair, and of a woman with
+tied-back blonde hair).
+
+The rule, in canonical space (the body faces -Y, +Z up), on the head's seen Gaussians:
+
+1. **Face and hair colours**: two colour clusters of the seen head (a few Lloyd iterations),
+   started from the median colour of the middle of the seen head (the ``CENTRE`` share nearest
+   to the head's midline in x, between the ``CENTRE`` and ``1 - CENTRE`` quantiles of height:
+   cheeks, nose, eyes) and from the rim colours farthest from it. The face's cluster is the one
+   that holds more of the middle; glasses and lips are too few to make a cluster of their own.
+2. **The hair**: the seen Gaussians on the rim of the seen head (the outer ``1 - RIM`` share in
+   |x| or in height) in the other cluster. When the two clusters' colours differ by no more than
+   ``contrast`` in every RGB channel, or fewer than ``min_share`` of the seen head (or fewer than
+   ``k``) are hair, the head shows no hair of its own colour (bald, or hair as light as the skin):
+   the rule stands down and the fill is as before.
+3. **What the hair covers**: the unseen Gaussians of the head behind its centre (y above the
+   centre's), and those above the top of the face or beside it (the ``FACE_TOP`` quantiles of
+   height and of |x| of the seen Gaussians that are not hair): the back of the head, the crown
+   and the temples. Unseen Gaussians among the
+   face's own (a photo's seen flags are dotted) keep the fill's colours of their height.
+
+Each such Gaussian takes the median colour of the nearest hair Gaussians at its height (the
+fill's same-height median), so a hat over hair keeps the hat above and the hair below.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# quantiles of the seen head that delimit its middle (the face) and its rim (hair, hat)
+CENTRE = 0.3
+RIM = 0.7
+# height quantile of the face's seen Gaussians taken as the top of the face
+FACE_TOP = 0.95
+LLOYD_STEPS = 10
+
+
+def hair_sources(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,
+                 min_share: float, k: int) -> np.ndarray:
+    """(S,) bool over the head's seen Gaussians (canonical positions ``src_pos``, colours
+    ``src_col``): those that show hair (rim, not face-coloured). All False when too few do."""
+    n = len(src_pos)
+    none = np.zeros(n, bool)
+    if n < k:
+        return none
+    ax = np.abs(src_pos[:, 0] - centre_x)
+    z = src_pos[:, 2]
+    z_lo, z_hi = np.quantile(z, [CENTRE, 1 - CENTRE])
+    middle = (ax <= np.quantile(ax, CENTRE)) & (z >= z_lo) & (z <= z_hi)
+    if not middle.any():
+        return none
+    rim = (ax >= np.quantile(ax, RIM)) | (z >= np.quantile(z, RIM))
+    face = np.median(src_col[middle], axis=0)
+    far = np.abs(src_col - face).max(axis=1)
+    rim_far = rim & (far >= np.median(far[rim]))
+    centres = np.stack([face, np.median(src_col[rim_far], axis=0)])
+    for _ in range(LLOYD_STEPS):
+        label = np.linalg.norm(src_col[:, None] - centres[None], axis=2).argmin(1)
+        centres = np.stack([src_col[label == j].mean(0) if (label == j).any() else centres[j] for j in (0, 1)])
+    face_label = int(np.bincount(label[middle], minlength=2).argmax())
+    if np.abs(centres[0] - centres[1]).max() <= contrast:
+        return none
+    hair = rim & (label != face_label)
+    if hair.sum() < max(k, min_share * n):
+        return none
+    return hair
+
+
+def hair_covered(todo_pos: np.ndarray, src_pos: np.ndarray, hair: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(T,) bool over the head's unseen Gaussians: those the hair covers -- behind the head's
+    ``centre``, above the top of the face or beside it (the seen Gaussians that are not hair)."""
+    face = src_pos[~hair]
+    if not len(face):
+        return todo_pos[:, 1] > centre[1]
+    top = np.quantile(face[:, 2], FACE_TOP)
+    half_width = np.quantile(np.abs(face[:, 0] - centre[0]), FACE_TOP)
+    return (todo_pos[:, 1] > centre[1]) | (todo_pos[:, 2] > top) | (np.abs(todo_pos[:, 0] - centre[0]) > half_width)
