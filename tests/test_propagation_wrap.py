@@ -243,3 +243,23 @@ def test_hair_as_light_as_the_skin_is_no_hair():
     found = hair_sources(pos[src], truth[src], 0.0, contrast=0.15, min_share=0.1, k=8)
     # the hair found is hair, and it is the rim of the seen head: all of the hair above the face
     assert np.all(truth[src][found] == HAIR) and found.sum() == np.all(truth[src] == HAIR, axis=1).sum()
+
+
+def test_front_only_head_with_hair_across_the_face_stands_down():
+    # hair falling over the face in strands: the middle is split between two colours and tells no
+    # face from hair; the fill is the one without the rule
+    pos, th, seen, truth = front_only_head()
+    deg = np.degrees(th)
+    strands = (pos[:, 2] < 1.70) & (np.abs(deg) < 80) & (np.floor(deg / 10) % 2 == 0)
+    col = truth.copy()
+    col[strands] = HAIR
+    parts = np.full(len(pos), PART_INDEX["head"])
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(hair_min_share=1.1)).numpy()
+    np.testing.assert_array_equal(out, off)
+    # with fewer strands (a fringe at one side) the face holds the middle and the rule runs
+    col = truth.copy()
+    col[strands & (deg > 40)] = HAIR
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(hair_min_share=1.1)).numpy()
+    assert np.abs(out - off).max() > 0.3

@@ -19,7 +19,11 @@ The rule, in canonical space (the body faces -Y, +Z up), on the head's seen Gaus
    |x| or in height) in the other cluster. When the two clusters' colours differ by no more than
    ``contrast`` in every RGB channel, or fewer than ``min_share`` of the seen head (or fewer than
    ``k``) are hair, the head shows no hair of its own colour (bald, or hair as light as the skin):
-   the rule stands down and the fill is as before.
+   the rule stands down and the fill is as before. It stands down too when the face's cluster
+   holds less than ``FACE_SHARE`` of the middle: a middle split between two colours (hair falling
+   across the face, a head bent forward) tells no face from hair (on a photo of a laughing woman
+   with long red-blonde hair over her cheeks, the dark cluster -- mouth and shadowed hair -- won
+   the middle with 58 % and the back of her head would have turned skin-coloured).
 3. **What the hair covers**: the unseen Gaussians of the head behind its centre (y above the
    centre's), and those above the top of the face or beside it (the ``FACE_TOP`` quantiles of
    height and of |x| of the seen Gaussians that are not hair): the back of the head, the crown
@@ -39,6 +43,8 @@ CENTRE = 0.3
 RIM = 0.7
 # height quantile of the face's seen Gaussians taken as the top of the face
 FACE_TOP = 0.95
+# share of the middle the face's cluster must hold (less: hair across the face, a head bent down)
+FACE_SHARE = 0.75
 LLOYD_STEPS = 10
 
 
@@ -64,8 +70,9 @@ def hair_sources(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, c
     for _ in range(LLOYD_STEPS):
         label = np.linalg.norm(src_col[:, None] - centres[None], axis=2).argmin(1)
         centres = np.stack([src_col[label == j].mean(0) if (label == j).any() else centres[j] for j in (0, 1)])
-    face_label = int(np.bincount(label[middle], minlength=2).argmax())
-    if np.abs(centres[0] - centres[1]).max() <= contrast:
+    votes = np.bincount(label[middle], minlength=2)
+    face_label = int(votes.argmax())
+    if np.abs(centres[0] - centres[1]).max() <= contrast or votes[face_label] < FACE_SHARE * votes.sum():
         return none
     hair = rim & (label != face_label)
     if hair.sum() < max(k, min_share * n):
