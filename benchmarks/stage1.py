@@ -21,6 +21,9 @@ and its learned skinning with that prior (all in the pieces above, as in ``Given
     python benchmarks/stage1.py --configs loose-off,loose-2cm,loose-1.4cm --rounds 2
 and the layer's cover prior (``train/layer_cover.py``; in "losses") against none:
     python benchmarks/stage1.py --configs loose-1.4cm,loose-nocover --rounds 2
+and, on the coat scene, the layer kept clear of the posed body (``avatar/layer_clearance.py``; in
+"pose", which moves the decoded Gaussians by their LBS matrices) against not:
+    python benchmarks/stage1.py --configs coat,coat-noclear --rounds 2
 """
 
 from __future__ import annotations
@@ -45,6 +48,8 @@ CONFIGS = {  # name -> (Stage1Config constructor, avatar overrides, the scene's 
     "loose-2cm": ("default", {"garment_layer_step": 0.02}, "wide_trousers"),
     "loose-1.4cm": ("default", {"garment_layer_step": 0.014}, "wide_trousers"),
     "loose-nocover": ("default", {}, "wide_trousers"),  # the layer without its cover prior
+    "coat": ("default", {}, "coat"),  # the layer kept clear of the posed body (the default)
+    "coat-noclear": ("default", {"garment_clearance": 0.0}, "coat"),
 }
 
 
@@ -101,7 +106,7 @@ def child(cfg: dict) -> dict:
         M, idx = timed("lbs", lbs)
         decoded += model.num_gaussians if idx is None else len(idx)
         canon = timed("decoder", lambda: model.canonical(index=idx))
-        posed = model.pose_with(canon, M if idx is None else M[idx])
+        posed = timed("pose", lambda: model.pose_with(canon, M if idx is None else M[idx], model.clearance_matrices(M)))
         r = timed("raster fwd", lambda: render_avatar(posed, tgt.camera, s.background, normals=True, first_hit=True))
 
         def loss_fn():
@@ -162,7 +167,7 @@ def main() -> None:
                 print(out.stderr[-2000:])
                 continue
             rows[name].append(json.loads(out.stdout.strip().splitlines()[-1]))
-    keys = ["lbs", "decoder", "raster fwd", "losses", "backward", "adam"]
+    keys = ["lbs", "decoder", "pose", "raster fwd", "losses", "backward", "adam"]
     print(f"{'config':<15} {'N':>6} {'layer':>6} {'decoded':>7} " + " ".join(f"{k:>10}" for k in keys)
           + f" {'step ms':>8} {'it/s':>6} {'Gauss-steps/s':>13} {'Trainer.step ms':>15}")
     summary = {}

@@ -109,7 +109,8 @@ def test_layer_gaussians_decode_pose_and_render(body, layer):
     torch.manual_seed(0)
     plain = AvatarModel(body, _config())
     torch.manual_seed(0)
-    m = AvatarModel(body, _config(), layer=layer)
+    # the bare LBS of the layer (its clearance from the body is tested in test_layer_clearance.py)
+    m = AvatarModel(body, _config(garment_clearance=0.0), layer=layer)
     N, M = plain.num_gaussians, layer.num_gaussians
     assert m.num_body == N and m.num_layer == M and m.num_gaussians == N + M
     for name in ("base_positions", "base_normals", "skin_weights", "canonical_inverse", "texel_spacing",

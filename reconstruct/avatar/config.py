@@ -64,6 +64,10 @@ class AvatarConfig:
     # round the tube between them; at most one per column); 1: shared round the tube. 12 let an
     # open coat's front panels follow their own thighs (coat seed 1: walk holes 2.2 -> 1.7 %)
     garment_skin_sectors: int = 12
+    # metres a garment layer's posed Gaussians are kept in front of the posed body surface it
+    # covers (layer_clearance.py: the legs' own skinning turns them out through cloth skinned with
+    # a blend); 0: off. Runs recorded before it load with 0
+    garment_clearance: float = 0.005
 
     @classmethod
     def paper(cls, **kw) -> "AvatarConfig":

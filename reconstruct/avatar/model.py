@@ -54,6 +54,7 @@ from .config import AvatarConfig
 from .decoder import GaussianDecoder
 from .garment_layer import GARMENT_PART, GarmentLayer, interpolation_matrix
 from .gaussian_sets import CanonicalGaussians, PosedGaussians, frame_quaternions
+from .layer_clearance import covered_ids, push_out
 from .pose_encoder import PoseEncoder
 
 LAYER_SKIN_SUPPORT = 1e-3  # bones the garment layer's learned skinning may reweight: weight above this somewhere on it
@@ -181,6 +182,8 @@ class AvatarModel(nn.Module):
             self.register_buffer("canonical_transforms", body.canonical_transforms.float(), persistent=False)
             self.layer_skin_sectors = sectors
             self.layer_skin_logit = nn.Parameter(torch.zeros(len(knots), layer.tubes * sectors, len(support)))
+            # the body Gaussians the layer is kept clear of (layer_clearance.py)
+            self.register_buffer("layer_clear_ids", torch.as_tensor(covered_ids(uv.parts)), persistent=False)  # (U,)
 
     @property
     def num_gaussians(self) -> int:
@@ -432,13 +435,48 @@ class AvatarModel(nn.Module):
             return torch.nonzero(keep)[:, 0]
 
     def pose(self, canon: CanonicalGaussians, pose_transforms: torch.Tensor) -> PosedGaussians:
-        return self.pose_with(canon, self.lbs_matrices(pose_transforms, canon.index))
+        clear = self.lbs_matrices(pose_transforms, self.layer_clear_ids) if self._clears(canon) else None
+        return self.pose_with(canon, self.lbs_matrices(pose_transforms, canon.index), clear)
 
-    def pose_with(self, canon: CanonicalGaussians, matrices: torch.Tensor) -> PosedGaussians:
-        """The Gaussians moved by per-Gaussian LBS ``matrices`` (N,4,4) (``lbs_matrices``)."""
+    def clearance_matrices(self, matrices: torch.Tensor) -> torch.Tensor | None:
+        """The LBS matrices of the body Gaussians the layer is kept clear of, from those of all
+        N+M Gaussians (``lbs_matrices``); None without a layer or with ``garment_clearance`` 0."""
+        if self.layer is None or self.config.garment_clearance <= 0:
+            return None
+        return matrices[self.layer_clear_ids]
+
+    def _clears(self, canon: CanonicalGaussians) -> bool:
+        if self.layer is None or self.config.garment_clearance <= 0:
+            return False
+        return canon.index is None or bool((canon.index >= self.num_body).any())
+
+    def pose_with(self, canon: CanonicalGaussians, matrices: torch.Tensor,
+                  clearance: torch.Tensor | None = None) -> PosedGaussians:
+        """The Gaussians moved by per-Gaussian LBS ``matrices`` (N,4,4) (``lbs_matrices``). A garment
+        layer's are then kept ``garment_clearance`` outside the posed body (``layer_clearance``),
+        which takes ``clearance``, the matrices of its body candidates (``clearance_matrices``;
+        read from ``matrices`` when these are all N+M Gaussians')."""
         tangents = None if canon.tangents is None else matrices[:, :3, :3] @ canon.tangents[..., None]
-        return self.splats(canon, apply_points(matrices, canon.means), apply_normals(matrices, canon.normals),
+        means = apply_points(matrices, canon.means)
+        if self._clears(canon):
+            if clearance is None:
+                if canon.index is not None:
+                    raise ValueError("pose_with: a subset with garment-layer Gaussians needs the clearance "
+                                     "matrices of the body Gaussians it is kept clear of (clearance_matrices)")
+                clearance = self.clearance_matrices(matrices)
+            means = self._clear_layer(canon, means, clearance)
+        return self.splats(canon, means, apply_normals(matrices, canon.normals),
                            None if tangents is None else tangents[..., 0])
+
+    def _clear_layer(self, canon: CanonicalGaussians, means: torch.Tensor, clearance: torch.Tensor) -> torch.Tensor:
+        nb = self.num_body
+        rows = (torch.arange(nb, len(means), device=means.device) if canon.index is None
+                else torch.nonzero(canon.index >= nb)[:, 0])
+        ids = self.layer_clear_ids
+        points = apply_points(clearance, self.base_positions[ids].to(clearance))
+        normals = lambda j: apply_normals(clearance[j], self.base_normals[ids[j]].to(clearance))  # noqa: E731
+        pushed = push_out(means[rows], points, normals, self.config.garment_clearance)
+        return means.index_put((rows,), pushed)
 
     @staticmethod
     def splats(canon: CanonicalGaussians, means: torch.Tensor | None = None, normals: torch.Tensor | None = None,

@@ -119,7 +119,7 @@ class GivenViewStep(TrainingStep):
         index = None if margin is None else model.facing(matrices, tgt.camera.center, margin)
         # state.decode(i) for the chosen Gaussians (with the edits: locked texels keep their attributes)
         canon, pose_features = state.decode(i, index=index)
-        posed = model.pose_with(canon, matrices if index is None else matrices[index])
+        posed = model.pose_with(canon, matrices if index is None else matrices[index], model.clearance_matrices(matrices))
         if not gaussians_finite(posed):
             return StepOutcome(i, skipped=True)
         background, image = data.background, tgt.image
