@@ -4,7 +4,8 @@ body shape and poses, one camera).
 read frames (``inputs.py``) -> find everyone, pick one person (``people.py``) -> one steady crop around them
 (``crop.py``) -> detector on the crop (2D/3D keypoints, GrabCut-refined person mask) -> other people out of
 the mask, small holes filled (``masks.py``) -> drop frames without a person -> fit shape, poses and camera
-(``fit.py``, ``shape.py``) -> side-view lean (``lean.py``) -> write the scene folder, ``prepare_report.json``
+(``fit.py``, ``shape.py``) -> side-view lean (``lean.py``) -> the mask's soft band coloured from inside
+(``matting.py``) -> write the scene folder, ``prepare_report.json``
 and ``prepare_report.png`` atomically: everything goes to a hidden sibling folder that is renamed into
 place only when complete.
 """
@@ -33,6 +34,7 @@ from .keypoints import LANDMARK_NAMES, LANDMARK_TARGETS
 from .lean import side_view
 from .masks import fill_holes as fill_mask_holes
 from .masks import remove_others
+from .matting import decontaminate
 from .people import PersonChoiceError, PersonTrack, choose_person
 from .report_image import REPORT_IMAGE, ReportFrame, pick_frames, write_report_image
 from .shape import ShapeBasis, body_height
@@ -224,7 +226,8 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
     scene_frames = []
     for k, (i, pose) in enumerate(zip(indices, fit.poses)):
         mask = kept.masks[k].astype(np.float32)
-        image = frames[keep][k].astype(np.float32) / 255.0 * mask[..., None]
+        # the soft band's colours from inside, not blended with the background (matting.py)
+        image = decontaminate(frames[keep][k].astype(np.float32) / 255.0, mask) * mask[..., None]
         scene_frames.append(Frame(int(i), image, mask, fit.camera, pose, None, time=float(i) / (video.fps * every)))
     per_frame = [{"index": int(i), "name": n, "keypoint_px_error": round(float(e), 3), "silhouette_iou": round(float(u), 4)}
                  for i, n, e, u in zip(indices, kept_names, fit.keypoint_px_error, fit.iou)]
