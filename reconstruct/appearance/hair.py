@@ -27,8 +27,8 @@ The rule, in canonical space (the body faces -Y, +Z up), on the head's seen Gaus
 3. **What the hair covers**: the unseen Gaussians of the head behind its centre (y above the
    centre's), and those above the top of the face or beside it (the ``FACE_TOP`` quantiles of
    height and of |x| of the seen Gaussians that are not hair): the back of the head, the crown
-   and the temples. Unseen Gaussians among the
-   face's own (a photo's seen flags are dotted) keep the fill's colours of their height.
+   and the temples. Unseen Gaussians among the face's own (a photo's seen flags are dotted) keep
+   the fill's colours of their height.
 
 Each such Gaussian takes the median colour of the nearest hair Gaussians at its height (the
 fill's same-height median), so a hat over hair keeps the hat above and the hair below.
@@ -41,11 +41,11 @@ import numpy as np
 # quantiles of the seen head that delimit its middle (the face) and its rim (hair, hat)
 CENTRE = 0.3
 RIM = 0.7
-# height quantile of the face's seen Gaussians taken as the top of the face
+# quantile of the face's seen Gaussians' height (and |x|) taken as the top (and the side) of the face
 FACE_TOP = 0.95
 # share of the middle the face's cluster must hold (less: hair across the face, a head bent down)
 FACE_SHARE = 0.75
-LLOYD_STEPS = 10
+LLOYD_STEPS = 10  # iterations of the two-cluster split
 
 
 def hair_sources(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,

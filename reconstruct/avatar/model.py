@@ -34,7 +34,8 @@ decoder with the same input width: [L, L, uv] where the layer's "uv" lies on an 
 body's [-1, 1] square and continuous across the seam -- so the decoder can tell layer from body and
 the body's inputs are exactly today's. Stage II's pose features are the body's (a map over its UV
 atlas): the layer decodes [L, L, uv] in both stages. Layer Gaussians have a learned opacity
-(``sigmoid(garment_opacity_gain * layer_opacity)``); body Gaussians stay opaque. Without a layer
+(``sigmoid(garment_opacity_gain * layer_opacity)``); body Gaussians stay opaque. Posed, the layer's
+Gaussians are kept ``garment_clearance`` outside the posed body (``layer_clearance``). Without a layer
 nothing of this exists and the model is the one before the layer (same parameters, same outputs).
 """
 
@@ -454,8 +455,8 @@ class AvatarModel(nn.Module):
                   clearance: torch.Tensor | None = None) -> PosedGaussians:
         """The Gaussians moved by per-Gaussian LBS ``matrices`` (N,4,4) (``lbs_matrices``). A garment
         layer's are then kept ``garment_clearance`` outside the posed body (``layer_clearance``),
-        which takes ``clearance``, the matrices of its body candidates (``clearance_matrices``;
-        read from ``matrices`` when these are all N+M Gaussians')."""
+        which takes ``clearance``, the matrices of the body Gaussians it is kept clear of
+        (``clearance_matrices``; read from ``matrices`` when these are all N+M Gaussians')."""
         tangents = None if canon.tangents is None else matrices[:, :3, :3] @ canon.tangents[..., None]
         means = apply_points(matrices, canon.means)
         if self._clears(canon):
