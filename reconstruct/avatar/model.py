@@ -436,7 +436,9 @@ class AvatarModel(nn.Module):
             return torch.nonzero(keep)[:, 0]
 
     def pose(self, canon: CanonicalGaussians, pose_transforms: torch.Tensor) -> PosedGaussians:
-        clear = self.lbs_matrices(pose_transforms, self.layer_clear_ids) if self._clears(canon) else None
+        # a subset's matrices lack the body Gaussians the layer is kept clear of; all N+M hold them
+        subset = canon.index is not None and self._clears(canon)
+        clear = self.lbs_matrices(pose_transforms, self.layer_clear_ids) if subset else None
         return self.pose_with(canon, self.lbs_matrices(pose_transforms, canon.index), clear)
 
     def clearance_matrices(self, matrices: torch.Tensor) -> torch.Tensor | None:

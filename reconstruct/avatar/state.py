@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from ..body.base import BodyModel
+from ..body.lbs import apply_normals
 from ..body.pose import BodyPose
 from ..edits.edit_list import EditList
 from ..snapshot import Snapshot
@@ -148,11 +149,11 @@ class AvatarState:
         on -- the body's or the garment layer's, posed the same way -- instead of the learned ones
         (which turn freely where no normal map pins them); one decode for both."""
         canonical, transforms = self.canonical(frame), self.frame_transforms(frame)
-        posed = self.edits.apply_posed(self.model.pose(canonical, transforms))
         if not surface:
-            return posed, None
-        base = dataclasses.replace(canonical, normals=self.model.base_normals)
-        return posed, self.model.pose(base, transforms).normals
+            return self.edits.apply_posed(self.model.pose(canonical, transforms)), None
+        matrices = self.model.lbs_matrices(transforms, canonical.index)  # one LBS for both
+        posed = self.edits.apply_posed(self.model.pose_with(canonical, matrices))
+        return posed, apply_normals(matrices, self.model.base_normals)
 
     def posed_at(self, pose: BodyPose) -> PosedGaussians:
         """The avatar at any pose of its body (novel poses, motion files)."""
