@@ -126,6 +126,27 @@ def test_head_back_is_hair_not_the_ears_at_the_same_height():
     assert np.linalg.norm(both[back & low] - SKIN, axis=1).mean() < 0.05
 
 
+def test_head_back_is_hair_where_the_posterior_band_shows_only_ear_skin():
+    # a video that turned to 100 degrees: behind the centre it saw hair, except at ear height,
+    # where the ears (and the skin behind them) fill the sides up to 100 degrees. The back at ear
+    # height takes the hair above and below, not the ears' skin carried across it
+    pos, th = cylinder(radius=0.09, height=0.22, n_theta=72, n_z=44, z0=1.55)
+    deg = np.abs(np.degrees(th))
+    face = (deg < 60) & (pos[:, 2] < 1.72)
+    ears = (deg > 80) & (deg <= 100) & (np.abs(pos[:, 2] - 1.625) < 0.025)
+    col = np.where((face | ears)[:, None], SKIN, HAIR)
+    seen = deg <= 100
+    parts = np.full(len(pos), PART_INDEX["head"])
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    back = ~seen
+    assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
+    # without the face's colour cluster (the hair rule standing down) the ears' skin is carried
+    # round at their height: the case is real
+    off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(hair_min_share=1.1)).numpy()
+    ear_back = back & (np.abs(pos[:, 2] - 1.625) < 0.015)
+    assert np.linalg.norm(off[ear_back] - SKIN, axis=1).mean() < 0.05
+
+
 def test_parts_are_filled_separately_and_returns_float32_tensor():
     pos, th = cylinder()
     torso_top = pos[:, 2] > 1.25

@@ -1,6 +1,7 @@
 """The hair of a head seen only from the front: which seen Gaussians of the head show it, and which
 unseen ones it covers. Used by the wrap-around fill (``wrap_fill``) when the head has too few
-seen Gaussians behind its centre for the posterior band (one photo, or a video that never turned).
+seen Gaussians behind its centre for the posterior band (one photo, or a video that never turned),
+and, for the face's colour alone, to keep skin out of that band when it has enough.
 
 Why. From the front the head is a face framed by hair (or a hat): hair at the top and the sides,
 skin in the middle. The fill carries the seen colours round at the same height, so at face height
@@ -32,6 +33,11 @@ The rule, in canonical space (the body faces -Y, +Z up), on the head's seen Gaus
 
 Each such Gaussian takes the median colour of the nearest hair Gaussians at its height (the
 fill's same-height median), so a hat over hair keeps the hat above and the hair below.
+
+**A head the video saw behind its centre** (the posterior band of the fill) uses step 1 only
+(``face_coloured``): the band's Gaussians in the face's colour cluster -- the ears and the skin
+behind the jaw, which a turning video sees just behind the coronal plane -- are left out of the
+band, so that the back at ear and nape height takes the hair above and below it.
 """
 
 from __future__ import annotations
@@ -48,20 +54,19 @@ FACE_SHARE = 0.75
 LLOYD_STEPS = 10  # iterations of the two-cluster split
 
 
-def hair_sources(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,
-                 min_share: float, k: int) -> np.ndarray:
-    """(S,) bool over the head's seen Gaussians (canonical positions ``src_pos``, colours
-    ``src_col``): those that show hair (rim, not face-coloured). All False when too few do."""
+def _split(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,
+           min_share: float, k: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(hair, face) bool masks over the head's seen Gaussians (steps 1-2 of the module
+    docstring); None when the rule stands down."""
     n = len(src_pos)
-    none = np.zeros(n, bool)
     if n < k:
-        return none
+        return None
     ax = np.abs(src_pos[:, 0] - centre_x)
     z = src_pos[:, 2]
     z_lo, z_hi = np.quantile(z, [CENTRE, 1 - CENTRE])
     middle = (ax <= np.quantile(ax, CENTRE)) & (z >= z_lo) & (z <= z_hi)
     if not middle.any():
-        return none
+        return None
     rim = (ax >= np.quantile(ax, RIM)) | (z >= np.quantile(z, RIM))
     face = np.median(src_col[middle], axis=0)
     far = np.abs(src_col - face).max(axis=1)
@@ -73,11 +78,28 @@ def hair_sources(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, c
     votes = np.bincount(label[middle], minlength=2)
     face_label = int(votes.argmax())
     if np.abs(centres[0] - centres[1]).max() <= contrast or votes[face_label] < FACE_SHARE * votes.sum():
-        return none
+        return None
     hair = rim & (label != face_label)
     if hair.sum() < max(k, min_share * n):
-        return none
-    return hair
+        return None
+    return hair, label == face_label
+
+
+def hair_sources(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,
+                 min_share: float, k: int) -> np.ndarray:
+    """(S,) bool over the head's seen Gaussians (canonical positions ``src_pos``, colours
+    ``src_col``): those that show hair (rim, not face-coloured). All False when too few do."""
+    split = _split(src_pos, src_col, centre_x, contrast=contrast, min_share=min_share, k=k)
+    return np.zeros(len(src_pos), bool) if split is None else split[0]
+
+
+def face_coloured(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,
+                  min_share: float, k: int) -> np.ndarray:
+    """(S,) bool over the head's seen Gaussians: those in the face's colour cluster (skin: the
+    face, the ears, a bare neck), when the head shows hair of its own colour; all False when the
+    rule stands down (a bald head, hair as light as the skin)."""
+    split = _split(src_pos, src_col, centre_x, contrast=contrast, min_share=min_share, k=k)
+    return np.zeros(len(src_pos), bool) if split is None else split[1]
 
 
 def hair_covered(todo_pos: np.ndarray, src_pos: np.ndarray, hair: np.ndarray, centre: np.ndarray) -> np.ndarray:

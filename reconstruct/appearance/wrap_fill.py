@@ -23,8 +23,11 @@ positions (the body faces -Y, +Z up):
    continue with their phase, while a colour found only in the middle of the front -- the chest
    emblem, the face's skin framed by hair -- is rejected and the low-frequency fill of step 2
    stands.
-   On the head, seen from the front only (fewer than ``k`` seen Gaussians behind its centre),
-   the back and the crown take the hair's colour instead (``hair.py``).
+   On the head the band is the seen surface behind the head's centre, less the Gaussians in the
+   face's colour cluster (the ears' and the jaw's skin the turning video saw just behind the
+   coronal plane) when the head shows hair of its own colour (``hair.py``). Seen from the front
+   only (fewer than ``k`` seen Gaussians behind its centre), the back and the crown take the
+   hair's colour instead.
 4. **Smoothing.** A few Jacobi sweeps over the UV grid of the unseen Gaussians (seen ones fixed)
    remove single-texel noise from the median choices.
 
@@ -46,7 +49,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
-from .hair import hair_covered, hair_sources
+from .hair import face_coloured, hair_covered, hair_sources
 
 
 @dataclass(frozen=True)
@@ -75,6 +78,9 @@ class WrapFillConfig:
     # of the head is the hair seen behind the ears, not the skin of the ears and cheeks at the
     # same height (which, carried round, would paint a band of face colour across the back)
     posterior_band_parts: tuple[str, ...] = ("head",)
+    # (less those in the face's colour cluster, when the head shows hair: on coat seed 1 the
+    # band held two or three ears' skin Gaussians at ear and nape height, and the median of the
+    # nape flipped between skin and hair with the training trajectory, front_leak 0.005 / 0.060)
     # ... and when a head has fewer than ``k`` of those (one photo), its back and crown take the
     # colour of the hair the front shows round the face (``hair.py``): rim Gaussians differing
     # from the face's colour by more than ``hair_contrast`` in some channel, at least
@@ -199,18 +205,23 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         in_band = np.isfinite(d_band)
         if in_band.sum() < cfg.k:
             in_band = np.ones(len(src), bool)
-        band_pos, band_col = src_pos[in_band], col[src][in_band]
+        band_idx = np.flatnonzero(in_band)  # into src
+        band_pos, band_col = src_pos[band_idx], col[src][band_idx]
         # colours the garment shows round BOTH sides: a band Gaussian is kept when the band of the
         # other side (left/right of the part's centre) shows its colour at a nearby height; a
         # front-only detail that reaches one side (an off-centre emblem) is dropped from the band
         both = _on_both_sides(band_pos, band_col, pos[members, 0].mean(), cfg)
         if both.sum() >= cfg.k:
-            band_pos, band_col = band_pos[both], band_col[both]
+            band_idx, band_pos, band_col = band_idx[both], band_pos[both], band_col[both]
         covered = None
         if p < len(PART_NAMES) and PART_NAMES[p] in cfg.posterior_band_parts:
             behind = band_pos[:, 1] > pos[members, 1].mean()
             if behind.sum() >= cfg.k:
-                band_pos, band_col = band_pos[behind], band_col[behind]
+                band_idx, band_pos, band_col = band_idx[behind], band_pos[behind], band_col[behind]
+                skin = face_coloured(src_pos, col[src], pos[members, 0].mean(), contrast=cfg.hair_contrast,
+                                     min_share=cfg.hair_min_share, k=cfg.k)[band_idx]
+                if (~skin).sum() >= cfg.k:
+                    band_pos, band_col = band_pos[~skin], band_col[~skin]
             else:
                 centre = np.array([pos[members, i].mean() for i in range(3)])
                 hair = hair_sources(src_pos, col[src], centre[0], contrast=cfg.hair_contrast,
