@@ -549,6 +549,48 @@ def test_untrained_layer_gaussians_take_the_trained_cloths_opacity_at_their_heig
             m.layer_opacity.copy_(saved_op)
 
 
+
+def test_untrained_layer_opacity_has_no_ring_below_the_hem(layered):
+    """Below the hem the untrained Gaussians' opacities never rise again down the rows:
+    a trained row below the hem whose median is higher than the row above (the hem's columns mixed)
+    gives the untrained ones the row above's value; rows above the most opaque one keep theirs, and
+    rows whose trained cloth is nearly emptied (median below 0.1) are empty."""
+    from reconstruct.train.unseen_fill import fill_unseen_layer_opacity
+
+    t = layered
+    m, state = t.model, t.state
+    N = m.num_body
+    R, C = m.layer.grid_shape
+    assert R >= 6
+    rows = m.layer_rc[:, 0]
+    cols = m.layer_rc[:, 1]
+    saved_seen, saved_op = state.seen.clone(), m.layer_opacity.detach().clone()
+    hem = R // 2
+    profile = torch.full((R,), 0.9)
+    profile[0] = 0.5  # the top fades into the body: kept
+    profile[2] = 0.99  # the most opaque row; the rows under it, down to the hem, keep their 0.9
+    profile[hem:] = 0.05  # emptied cloth below the hem: 0 (the margin)
+    profile[hem + 1] = 0.4  # a stray row below the hem
+    try:
+        g = m.config.garment_opacity_gain
+        with torch.no_grad():
+            m.layer_opacity.copy_(torch.logit(profile[rows]) / g)
+        trained = cols < C // 2
+        state.seen[:] = False
+        before = m.opacities().detach().clone()
+        fill_unseen_layer_opacity(state, trained, erosion=0)
+        got = m.opacities().detach()[N:]
+        per_row = torch.stack([got[(rows == r) & ~trained].mean() for r in range(R)])
+        want = profile.clone()
+        want[hem:] = 1e-3
+        assert torch.allclose(per_row, want, atol=1e-4), (per_row, want)
+        # without the rule the stray row would have been copied: the case is real
+        assert abs(float(before[N:][(rows == hem + 1) & trained].median()) - 0.4) < 1e-4
+    finally:
+        state.seen.copy_(saved_seen)
+        with torch.no_grad():
+            m.layer_opacity.copy_(saved_op)
+
 def test_layer_faced_training_is_the_front_of_the_tube_for_a_front_camera(layered):
     """Against an independent reference: the cosine between each posed layer normal and the
     direction to the camera, in float64, over every training frame."""

@@ -1,142 +1,147 @@
-"""The garment layer's cover prior (train/layer_cover.py): mean (1 - opacity) over the layer
-Gaussians of a view that project inside its mask. The projection is checked against the camera's
-own float64 NumPy projection; the term against its formula; in a training step it raises the
-opacity of the layer inside the silhouette and leaves the rest to the alpha loss."""
-
-from __future__ import annotations
-
-import dataclasses
+"""The body under a garment layer's cloth (reconstruct.avatar.layer_cover): which body Gaussians the
+cloth hides, against a brute-force float64 reference on a hand-built tube with a curved hem; the
+model-level indices; and the wrap fill painting the hidden unseen ones with the cloth's colour."""
 
 import numpy as np
 import pytest
 import torch
 
-from reconstruct.avatar.garment_layer import VolumeHint, build_garment_layer, landmark_heights
-from reconstruct.camera import Camera
-from reconstruct.train.config import Stage1Config
-from reconstruct.train.evaluate import inner_mask
-from reconstruct.train.layer_cover import inside_mask, layer_cover_term
+from reconstruct.appearance.wrap_fill import wrap_fill_colors
+from reconstruct.avatar.garment_layer import GARMENT_PART
+from reconstruct.avatar.layer_cover import body_under_layer, model_body_under_layer
+from reconstruct.body.parts import PART_INDEX
+
+R, C = 12, 24
+ROW_STEP = 0.04
 
 
-def _camera() -> Camera:
-    return Camera.look_at(eye=(0.3, 0.2, 3.0), target=(0.0, 0.0, 0.0), width=40, height=30, fov_y_deg=40.0)
+def _tube(radius=0.2):
+    """A layer grid: rows down from z = 0, columns round; outward normals; (M,2) row/column."""
+    r, c = np.meshgrid(np.arange(R), np.arange(C), indexing="ij")
+    th = 2 * np.pi * c.ravel() / C
+    pos = np.c_[radius * np.cos(th), radius * np.sin(th), -ROW_STEP * r.ravel()]
+    nrm = np.c_[np.cos(th), np.sin(th), np.zeros(R * C)]
+    return pos, nrm, np.c_[r.ravel(), c.ravel()]
 
 
-def _inner(mask, inset: int) -> torch.Tensor:
-    """The (H,W) mask eroded as training erodes it (``evaluate.inner_mask``)."""
-    return inner_mask(torch.as_tensor(mask, dtype=torch.float32) > 0.5, inset)
+def _opacity(rc):
+    op = np.full(len(rc), 0.9)
+    op[rc[:, 0] == 0] = 0.2  # the top fades into the body
+    op[(rc[:, 1] < 6) & (rc[:, 0] >= 6)] = 0.05  # a shorter hem on one side
+    op[(rc[:, 1] == 10) & (rc[:, 0] == 3)] = 0.05  # a hole: the column's hem is above it
+    op[rc[:, 0] == R - 1] = 0.05
+    return op
 
 
-def _reference_inside(points: np.ndarray, cam: Camera, mask: np.ndarray, inset: int) -> np.ndarray:
-    """Float64: project with Camera.project, floor to the pixel, test that every pixel within
-    ``inset`` (Chebyshev) is in the mask, pixels off the image counting as in it (the image border
-    is not background, as evaluate.inner_mask)."""
-    uv, z = cam.project(points)
-    H, W = mask.shape
-    out = np.zeros(len(points), bool)
-    for k, ((u, v), d) in enumerate(zip(uv, z)):
-        if not d > 1e-6:
+def _reference(body, parts, lpos, lnrm, rc, op, covered, margin):
+    """float64, brute force, loops: the nearest layer Gaussian; its column's opaque run from row 1."""
+    out = np.full(len(body), -1)
+    hem = {}
+    for col in range(C):
+        z = None
+        for row in range(1, R):
+            k = np.flatnonzero((rc[:, 0] == row) & (rc[:, 1] == col))[0]
+            if op[k] < 0.5:
+                break
+            z = (row, lpos[k, 2])
+        hem[col] = z
+    for i, p in enumerate(body):
+        if parts[i] not in covered:
             continue
-        c, r = int(np.floor(u)), int(np.floor(v))
-        if not (0 <= c < W and 0 <= r < H):
+        j = int(np.argmin(((lpos - p) ** 2).sum(1)))
+        row, col = rc[j]
+        if hem[col] is None or row == 0 or row > hem[col][0]:
             continue
-        win = mask[max(0, r - inset):r + inset + 1, max(0, c - inset):c + inset + 1]
-        out[k] = bool(win.all())
+        if np.dot(p - lpos[j], lnrm[j]) >= 0 or p[2] < hem[col][1] + margin:
+            continue
+        out[i] = j
     return out
 
 
-@pytest.mark.parametrize("inset", [0, 1, 2])
-def test_inside_mask_against_the_cameras_projection(inset):
-    cam = _camera()
-    rng = np.random.default_rng(3)
-    mask = np.zeros((30, 40), bool)
-    mask[5:26, 8:30] = True
-    mask[12:16, 15:20] = False  # a hole in the middle
-    mask[0:8, 35:40] = True  # touching the image border
-    pts = rng.uniform(-1.2, 1.2, (4000, 3))
-    pts = np.concatenate([pts, [[0.3, 0.2, 4.0]]])  # behind the camera
-    got = inside_mask(torch.as_tensor(pts, dtype=torch.float32), cam, _inner(mask, inset))
-    want = _reference_inside(pts, cam, mask, inset)
-    # float32 against float64 projection: a point within 1e-4 px of a pixel edge may land either side
-    uv, _ = cam.project(pts)
-    near_edge = (np.abs(uv - np.round(uv)) < 1e-4).any(1)
-    assert (got.numpy() == want)[~near_edge].all()
-    assert want.sum() > 100 and (~want).sum() > 100
-    assert not got[-1]  # behind the camera
-    if inset:
-        assert inside_mask(torch.as_tensor(pts, dtype=torch.float32), cam, _inner(mask, 0)).sum() > got.sum()
+def test_hidden_body_matches_brute_force():
+    lpos, lnrm, rc = _tube()
+    op = _opacity(rc)
+    rng = np.random.default_rng(0)
+    n = 3000
+    th = rng.uniform(0, 2 * np.pi, n)
+    rad = rng.uniform(0.05, 0.26, n)  # inside and outside the tube
+    body = np.c_[rad * np.cos(th), rad * np.sin(th), rng.uniform(-0.6, 0.1, n)]
+    names = ["thigh.L", "torso", "head", "upperarm.L"]
+    parts = np.array([PART_INDEX[names[k]] for k in rng.integers(0, 4, n)])
+    got = body_under_layer(body, parts, lpos, lnrm, rc, (R, C), op, hem_margin=0.03)
+    covered = {PART_INDEX["thigh.L"], PART_INDEX["torso"]}
+    want = _reference(body, parts, lpos, lnrm, rc, op, covered, 0.03)
+    np.testing.assert_array_equal(got, want)
+    hidden = got >= 0
+    # the case is rich: many hidden, and each reason to be left out occurs
+    assert 300 < hidden.sum() < n // 2
+    assert not hidden[~np.isin(parts, list(covered))].any()
+    assert not hidden[rad > 0.21].any()  # outside the cloth
+    short = (np.mod(th, 2 * np.pi) < 2 * np.pi * 5.5 / C) & (body[:, 2] < -0.2) & (rad < 0.19)
+    assert short.any() and not hidden[short & np.isin(parts, list(covered))].any()  # under the shorter hem
+    assert hidden[(body[:, 2] < -0.3) & (rad < 0.19)].any()  # the longer hem hides lower
 
 
-def test_term_is_the_mean_over_the_layer_inside():
-    cam = _camera()
-    mask = torch.zeros(30, 40)
-    mask[5:26, 8:30] = 1
-    # centre of the image (inside), and far off to the side (outside)
-    inside_pt, outside_pt = [0.0, 0.0, 0.0], [3.0, 0.0, 0.0]
-    means = torch.tensor([inside_pt, inside_pt, outside_pt, inside_pt, outside_pt])
-    ids = torch.tensor([0, 5, 6, 7, 8])  # 0: a body Gaussian; 5..8: the layer's (num_body = 5)
-    opac = torch.tensor([1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.9, 0.6, 0.1], requires_grad=True)
-    inner = _inner(mask, 2)
-    term = layer_cover_term(opac, means, ids, 5, cam, inner)
-    assert torch.allclose(term, torch.tensor(((1 - 0.2) + (1 - 0.6)) / 2))
-    term.backward()
-    g = opac.grad
-    assert torch.allclose(g[[5, 7]], torch.full((2,), -0.5))  # only the layer inside
-    assert torch.count_nonzero(g) == 2
-    assert layer_cover_term(opac, means[[0, 2]], ids[[0, 2]], 5, cam, inner) is None  # body, or layer outside
-    assert layer_cover_term(opac, means[:1], ids[:1], 5, cam, inner) is None
+def test_no_layer_hides_nothing():
+    lpos, lnrm, rc = _tube()
+    body = np.zeros((5, 3))
+    parts = np.full(5, PART_INDEX["torso"])
+    out = body_under_layer(body, parts, lpos[:0], lnrm[:0], rc[:0], (0, 0), np.zeros(0))
+    np.testing.assert_array_equal(out, -np.ones(5))
 
 
-def test_config_and_old_records():
-    assert Stage1Config().lambda_layer_cover == 0.03  # on by default (a tight run has no layer: no term)
-    with pytest.raises(ValueError, match="lambda_layer_cover"):
-        Stage1Config(lambda_layer_cover=-1.0)
-    with pytest.raises(ValueError, match="layer_cover_inset"):
-        Stage1Config(layer_cover_inset=-1)
-    record = Stage1Config().to_dict()
-    del record["lambda_layer_cover"]
-    assert Stage1Config.from_dict(record).lambda_layer_cover == 0.0  # recorded before the prior
-
-
-def test_a_step_raises_the_opacity_of_the_layer_inside_the_silhouette(tiny_scene, tiny_config):
-    """With the prior alone pulling (rgb / alpha off), one Adam step raises the opacity of exactly
-    the layer Gaussians that project inside the frame's mask; at 0, the term is not there."""
-    from reconstruct.train.trainer import Trainer
+def test_model_indices(tiny_scene):
+    from reconstruct.avatar import AvatarConfig, AvatarModel
+    from reconstruct.avatar.garment_layer import VolumeHint, build_garment_layer, landmark_heights
+    from reconstruct.avatar.layer_clearance import COVERED_PARTS
 
     body = tiny_scene.body_model()
     m = landmark_heights(body)
-    layer = build_garment_layer(body, VolumeHint(top_z=m["waist"], hem_z=m["knee"] + 0.08, standoff_hem=0.05),
-                                cols=16, row_step=0.06)
-    zero = dict(lambda_rgb=0.0, lambda_ssim=0.0, lambda_normal=0.0, lambda_alpha=0.0, lambda_layer_spacing=0.0,
-                lr_layer_skinning=0.0, cull_backfacing=None)
-    off = Trainer(tiny_scene, dataclasses.replace(tiny_config, lambda_layer_cover=0.0, **zero), garment_layer=layer)
-    assert "layer_cover" not in off.plan.steps["given"](off).terms
-    t = Trainer(tiny_scene, dataclasses.replace(tiny_config, lambda_layer_cover=1.0, **zero), garment_layer=layer)
-    model, N = t.model, t.model.num_body
-    before = model.opacities().detach().clone()
-    outcome = t.plan.steps["given"](t)
-    assert "layer_cover" in outcome.terms
-    i = outcome.frame
-    tgt = t.data.targets[i]
-    with torch.no_grad():
-        posed = model.pose_with(model.canonical(), model.lbs_matrices(t.state.frame_transforms(i)))
-    inside = inside_mask(posed.means[N:], tgt.camera, _inner(tgt.mask, t.config.layer_cover_inset))
-    assert 0 < int(inside.sum()) < len(inside)
-    t.optimizer.zero_grad()
-    (outcome.terms["layer_cover"] * outcome.weights["layer_cover"]).backward()
-    t.optimizer.step()
-    delta = model.opacities().detach()[N:] - before[N:]
-    assert (delta[inside] > 0).all()
-    assert torch.equal(delta[~inside], torch.zeros_like(delta[~inside]))
+    hint = VolumeHint(top_z=m["waist"], hem_z=m["knee"] + 0.08, standoff_hem=0.05)
+    layer = build_garment_layer(body, hint, cols=16, row_step=0.06)
+    cfg = AvatarConfig(gaussian_resolution=48, feature_resolution=32, feature_channels=8, pose_feature_channels=8,
+                       hidden=32)
+    torch.manual_seed(0)
+    model = AvatarModel(body, cfg, layer=layer)
+    with torch.no_grad():  # opaque cloth
+        model.layer_opacity.fill_(10.0)
+    u = model_body_under_layer(model)
+    N = model.num_body
+    assert u.shape == (model.num_gaussians,) and (u[N:] == -1).all()
+    hidden = u >= 0
+    assert hidden.sum() > 50 and (u[hidden] >= N).all()
+    covered = [PART_INDEX[p] for p in COVERED_PARTS]
+    assert np.isin(model.parts()[hidden], covered).all()
+    # the thighs under a knee-length layer are hidden, the shins' lower ends are not
+    z = model.base_positions[:N, 2].numpy()
+    thighs = np.isin(model.parts()[:N], [PART_INDEX["thigh.L"], PART_INDEX["thigh.R"]])
+    assert hidden[:N][thighs & (z > m["knee"] + 0.2)].mean() > 0.8
+    assert not hidden[:N][z < m["knee"]].any()
+    with torch.no_grad():  # emptied cloth hides nothing
+        model.layer_opacity.fill_(-10.0)
+    assert (model_body_under_layer(model) == -1).all()
+    assert model_body_under_layer(AvatarModel(body, cfg)) is None
 
 
-def test_a_frames_inner_mask_is_eroded_once_per_inset(tiny_scene):
-    """``FrameTarget.inner_mask``: ``evaluate.inner_mask`` of its mask, kept for the next step."""
-    from reconstruct.train.data import TrainingData
-
-    tgt = TrainingData(tiny_scene, torch.zeros(3), crop_margin=4).targets[0]
-    two = tgt.inner_mask(2)
-    assert torch.equal(two, inner_mask(tgt.mask > 0.5, 2))
-    assert tgt.inner_mask(2) is two
-    one = tgt.inner_mask(1)
-    assert torch.equal(one, inner_mask(tgt.mask > 0.5, 1)) and one.sum() > two.sum()
+def test_wrap_fill_paints_hidden_unseen_body_with_the_cloth():
+    lpos, lnrm, rc = _tube()
+    n_body = 40
+    rng = np.random.default_rng(1)
+    body = np.c_[rng.uniform(-0.1, 0.1, (n_body, 2)), rng.uniform(-0.3, -0.1, n_body)]
+    pos = np.r_[body, lpos]
+    parts = np.r_[np.full(n_body, PART_INDEX["torso"]), np.full(len(lpos), GARMENT_PART)]
+    colors = np.r_[np.tile([0.1, 0.1, 0.1], (n_body, 1)), np.tile([0.2, 0.6, 0.2], (len(lpos), 1))]
+    seen = np.ones(len(pos), bool)
+    seen[:30] = False  # 30 unseen body Gaussians; 10 seen ones
+    seen[n_body + 5] = False  # and an unseen layer Gaussian
+    under = np.full(len(pos), -1)
+    under[:n_body] = n_body + np.arange(n_body) % len(lpos)
+    under[:3] = -1  # not hidden
+    out = wrap_fill_colors(pos, parts, seen, colors, None, under_layer=under).numpy()
+    plain = wrap_fill_colors(pos, parts, seen, colors, None).numpy()
+    np.testing.assert_allclose(out[3:30], np.tile([0.2, 0.6, 0.2], (27, 1)), atol=1e-6)
+    np.testing.assert_array_equal(out[:3], plain[:3])
+    np.testing.assert_array_equal(out[30:], plain[30:])  # seen body and the layer as before
+    assert np.abs(plain[3:30] - [0.2, 0.6, 0.2]).max() > 0.3  # without it the body keeps its own colour
+    with pytest.raises(ValueError, match="under_layer must have shape"):
+        wrap_fill_colors(pos, parts, seen, colors, None, under_layer=under[:-1])

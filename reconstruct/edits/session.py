@@ -204,6 +204,7 @@ class EditSession:
             return self.plan.pseudo_colors
         from ..appearance.propagation import erode
         from ..appearance.wrap_fill import wrap_fill_colors
+        from ..avatar.layer_cover import model_body_under_layer
 
         trusted = state.trusted_seen
         if trusted is None:
@@ -212,7 +213,7 @@ class EditSession:
         return wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted.cpu(),
                                 state.canonical(None).colors.detach().cpu(), self.neighbours,
                                 normals=model.base_normals.cpu() if self.grazing_rule else None,
-                                no_mirror=state.edits.redone)
+                                no_mirror=state.edits.redone, under_layer=model_body_under_layer(model))
 
     def undo(self) -> EditEntry | None:
         """Removes the last edit (kept for ``redo``); None when there is none."""

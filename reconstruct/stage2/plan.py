@@ -29,6 +29,7 @@ import torch
 from ..camera import Camera
 from ..appearance.propagation import erode, propagate_colors
 from ..appearance.wrap_fill import grazing_rule_for, wrap_fill_colors
+from ..avatar.layer_cover import model_body_under_layer
 from ..priors.propagated import build_prior
 from ..train.checkpoint import STAGE1_CHECKPOINT_NAME
 from ..train.plan import StagePlan
@@ -218,7 +219,8 @@ class Stage2Plan(StagePlan):
         if self.settings.propagation == "diffusion":
             return propagate_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours)
         return wrap_fill_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours,
-                                normals=model.base_normals.cpu() if self.grazing_rule else None, no_mirror=no_mirror)
+                                normals=model.base_normals.cpu() if self.grazing_rule else None, no_mirror=no_mirror,
+                                under_layer=model_body_under_layer(model))
 
     def reference_image(self, trainer: Trainer, frame: int | None) -> torch.Tensor:
         if frame is None:

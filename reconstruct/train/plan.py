@@ -89,17 +89,18 @@ class Stage1Plan(StagePlan):
                 notes.append(f"{k.added} Gaussians the images blended into the person (no first hit) are seen")
             blended_only = k.blended_only
         if s.fill_unseen:
-            n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
-                                   not_sources=blended_only)
-            if n:
-                notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
+            # the layer's opacity first: the colours of the body under the cloth follow the cloth
+            # where it is opaque (``layer_cover``)
+            n_layer = 0
             if state.model.layer is not None:
                 trained = layer_faced_training(state, context.data)
                 if coverage is not None:
                     trained |= layer_reached(state, coverage.total_max, s.seen_min_weight)
-                n = fill_unseen_layer_opacity(state, trained)
-            else:
-                n = 0
+                n_layer = fill_unseen_layer_opacity(state, trained)
+            n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
+                                   not_sources=blended_only)
             if n:
-                notes.append(f"{n} garment-layer Gaussians no training camera faced took the trained cloth's opacity at their height")
+                notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
+            if n_layer:
+                notes.append(f"{n_layer} garment-layer Gaussians no training camera faced took the trained cloth's opacity at their height")
         return "Stage I: " + "; ".join(notes) if notes else None

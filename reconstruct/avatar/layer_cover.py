@@ -1,0 +1,78 @@
+"""The body under a garment layer's cloth: which body Gaussians the layer hides in canonical space,
+and which layer Gaussian hides each.
+
+Why. A coat's layer hangs 5 mm or more outside the body (``layer_clearance``), but the body's
+Gaussians under it are not gone: where their learned offsets or a pose bring them through the
+cloth, or where the cloth's Gaussians leave small gaps between them, they show. Unseen, they took
+the wrap-around fill's colours of their own part -- the trousers' dark, or the torso's band at hip
+height -- and seen from behind the coat photo's back showed a honeycomb of dark dots over the
+seat, and a thigh's stripe where it came through. Painted with the colour of the cloth that hides
+them, what shows through is the cloth.
+
+Which. A body Gaussian of the parts a layer covers (``layer_clearance.COVERED_PARTS``) whose nearest
+layer Gaussian in canonical space (base positions) faces it from outside (the body point is behind
+the layer point along the layer's outward normal) and lies in its column's opaque run: below the
+layer's top row (which may fade into the body) and no lower than the column's hem, the lowest row
+of the run of rows with opacity at least ``min_opacity`` that starts under the top row. The body
+point must also be ``hem_margin`` above that hem: a hem is curved and its height differs from
+column to column, and on the coat photo a strip of the shin under the back hem, whose nearest
+layer Gaussians were the front's lower ones, came out in the coat's colour without the margin.
+Body Gaussians above the layer's top or below its hem are not hidden.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .layer_clearance import covered_ids
+
+
+def body_under_layer(body_positions: np.ndarray, body_parts: np.ndarray, layer_positions: np.ndarray,
+                     layer_normals: np.ndarray, layer_rc: np.ndarray, grid_shape: tuple[int, int],
+                     layer_opacity: np.ndarray, *, min_opacity: float = 0.5, hem_margin: float = 0.03) -> np.ndarray:
+    """(N,) int64 over the body's Gaussians: the index (into the layer's) of the layer Gaussian that
+    hides each one, -1 for those it does not hide (see the module docstring). Canonical positions;
+    ``layer_rc``: (M,2) each layer Gaussian's grid row (0 the top) and column, on a ``grid_shape``
+    (rows, cols) grid."""
+    body_positions = np.asarray(body_positions, np.float64)
+    out = np.full(len(body_positions), -1, np.int64)
+    layer_positions = np.asarray(layer_positions, np.float64)
+    if len(layer_positions) == 0:
+        return out
+    R, C = grid_shape
+    rc = np.asarray(layer_rc, np.int64)
+    opaque = np.zeros((R, C), bool)
+    opaque[rc[:, 0], rc[:, 1]] = np.asarray(layer_opacity, np.float64) >= min_opacity
+    z = np.zeros((R, C))
+    z[rc[:, 0], rc[:, 1]] = layer_positions[:, 2]
+    # each column's hem: the lowest row of the opaque run below the top row (the top row itself may
+    # fade into the body); a column with no such run hides nothing
+    run = np.cumprod(opaque[1:], axis=0).astype(bool)
+    depth = run.sum(0)  # opaque rows below the top, contiguous
+    hem_z = np.where(depth > 0, z[np.clip(depth, 1, R - 1), np.arange(C)], np.inf)
+    ids = covered_ids(body_parts)
+    _, j = cKDTree(layer_positions).query(body_positions[ids])
+    j = np.asarray(j, np.int64)
+    inside = ((body_positions[ids] - layer_positions[j]) * np.asarray(layer_normals, np.float64)[j]).sum(1) < 0
+    row, col = rc[j, 0], rc[j, 1]
+    hidden = (inside & (row > 0) & (row <= depth[col])
+              & (body_positions[ids, 2] >= hem_z[col] + hem_margin))
+    out[ids[hidden]] = j[hidden]
+    return out
+
+
+def model_body_under_layer(model, min_opacity: float = 0.5) -> np.ndarray | None:
+    """``body_under_layer`` for an ``AvatarModel``, as (N+M,) indices into all its Gaussians (-1 for
+    the layer's own and the body Gaussians not hidden); None without a layer."""
+    if model.layer is None or model.num_layer == 0:
+        return None
+    N = model.num_body
+    pos = model.base_positions.detach().cpu().double().numpy()
+    nrm = model.base_normals.detach().cpu().double().numpy()
+    opacity = model.opacities().detach().cpu().double().numpy()
+    j = body_under_layer(pos[:N], model.parts()[:N], pos[N:], nrm[N:], model.layer_rc.cpu().numpy(),
+                         model.layer.grid_shape, opacity[N:], min_opacity=min_opacity)
+    out = np.full(len(pos), -1, np.int64)
+    out[:N] = np.where(j >= 0, j + N, -1)
+    return out
