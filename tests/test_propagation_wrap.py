@@ -284,3 +284,42 @@ def test_front_only_head_with_hair_across_the_face_stands_down():
     out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
     off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(hair_min_share=1.1)).numpy()
     assert np.abs(out - off).max() > 0.3
+
+
+# ---------------------------------------------------------------------------------------------
+# parts never seen behind their centre: their backs are smoothed more (front_only_sweeps)
+
+
+def cylinder_neighbours(n_theta, n_z):
+    """(N,4) grid neighbours of ``cylinder``'s points: round the ring (wrapping) and up/down."""
+    idx = np.arange(n_theta * n_z).reshape(n_z, n_theta)
+    nb = np.full((n_z, n_theta, 4), -1)
+    nb[..., 0] = np.roll(idx, -1, 1)
+    nb[:-1, :, 1] = idx[1:]
+    nb[..., 2] = np.roll(idx, 1, 1)
+    nb[1:, :, 3] = idx[:-1]
+    return nb.reshape(-1, 4)
+
+
+def test_front_only_part_back_is_smoothed_and_a_part_seen_behind_is_not():
+    # a torso seen from the front only (to 80 degrees) under uneven light: the sides' colours
+    # vary from row to row. The back is smoother with the front-only sweeps; the same torso seen
+    # to 100 degrees (behind its centre) is filled exactly as without them
+    pos, th = cylinder(n_theta=72, n_z=60)
+    rng = np.random.default_rng(0)
+    shade = rng.uniform(-0.15, 0.15, 60).repeat(72)  # a shade per row: folds and light
+    col = np.clip(np.tile([0.35, 0.4, 0.3], (len(pos), 1)) + shade[:, None], 0, 1)
+    parts = np.full(len(pos), PART_INDEX["torso"])
+    nb = cylinder_neighbours(72, 60)
+    deg = np.abs(np.degrees(th))
+    for seen, front_only in ((deg <= 80, True), (deg <= 100, False)):
+        out = wrap_fill_colors(pos, parts, seen, col, nb).numpy()
+        off = wrap_fill_colors(pos, parts, seen, col, nb, WrapFillConfig(front_only_sweeps=0)).numpy()
+        back = deg > 150
+        if front_only:
+            # row-to-row differences down the back's middle shrink
+            rough = lambda c: np.abs(np.diff(c[back].reshape(60, -1).mean(1))).mean()  # noqa: E731
+            assert rough(out) < 0.5 * rough(off)
+            np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
+        else:
+            np.testing.assert_array_equal(out, off)
