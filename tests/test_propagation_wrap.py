@@ -323,3 +323,25 @@ def test_front_only_part_back_is_smoothed_and_a_part_seen_behind_is_not():
             np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
         else:
             np.testing.assert_array_equal(out, off)
+
+
+def test_part_with_nothing_seen_takes_the_nearest_filled_colours():
+    # a neck the collar and the hair hid (no seen Gaussian): its back takes the filled hair of the
+    # back of the head just above it, not the seen ear skin at the head's sides
+    pos_h, th_h = cylinder(radius=0.09, height=0.22, n_theta=72, n_z=44, z0=1.55)
+    deg_h = np.abs(np.degrees(th_h))
+    face = (deg_h < 60) & (pos_h[:, 2] < 1.72)
+    ears = (deg_h > 80) & (deg_h <= 100) & (pos_h[:, 2] < 1.60)
+    col_h = np.where((face | ears)[:, None], SKIN, HAIR)
+    pos_n, th_n = cylinder(radius=0.06, height=0.08, n_theta=48, n_z=16, z0=1.46)
+    pos = np.r_[pos_h, pos_n]
+    parts = np.r_[np.full(len(pos_h), PART_INDEX["head"]), np.full(len(pos_n), PART_INDEX["neck"])]
+    seen = np.r_[deg_h <= 100, np.zeros(len(pos_n), bool)]
+    col = np.r_[col_h, np.full((len(pos_n), 3), 0.5)]
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    neck_back = np.r_[np.zeros(len(pos_h), bool), np.abs(np.degrees(th_n)) > 150]
+    assert np.linalg.norm(out[neck_back] - HAIR, axis=1).max() < 0.05
+    # the nearest *seen* Gaussians are the ears' skin: the case is real
+    from scipy.spatial import cKDTree
+    _, j = cKDTree(pos[seen]).query(pos[neck_back])
+    assert np.linalg.norm(col[seen][j] - SKIN, axis=1).mean() < 0.05

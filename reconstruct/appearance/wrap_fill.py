@@ -33,7 +33,7 @@ positions (the body faces -Y, +Z up):
    behind its centre (``front_only_sweeps``), whose back has no evidence of a pattern of its own.
 
 A part with no seen Gaussian borrows from its left/right twin (mirrored in x), then the colours
-are the nearest seen ones of any part.
+are the nearest seen or already filled ones of any part.
 
 Parts past the body's (``parts >= len(PART_NAMES)``): a garment layer's Gaussians
 (``garment_layer.GARMENT_PART``) are filled as one more part -- its band is the seen cloth round
@@ -272,9 +272,12 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         filled[todo] = True
     rest = np.flatnonzero(~seen & ~filled)
     if len(rest):
-        src = np.flatnonzero(seen)
+        # the nearest seen or already filled Gaussian of any part: the back of a neck a photo's
+        # collar and hair hid takes the filled back of the head or the collar behind it, not the
+        # jaw's skin in front (a skin-coloured band at the coat photo's nape)
+        src = np.flatnonzero(seen | filled)
         _, idx = cKDTree(pos[src]).query(pos[rest])
-        out[rest] = col[src[idx]]
+        out[rest] = out[src[idx]]
     # 4. a few Jacobi sweeps over the UV grid on the unseen Gaussians
     sweeps = max(cfg.smooth_sweeps, cfg.front_only_sweeps if front_only.any() else 0)
     if neighbours is not None and sweeps > 0:
