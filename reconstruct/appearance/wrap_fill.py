@@ -39,6 +39,8 @@ Parts past the body's (``parts >= len(PART_NAMES)``): a garment layer's Gaussian
 (``garment_layer.GARMENT_PART``) are filled as one more part -- its band is the seen cloth round
 the tube at the same height, its mirror the same row at theta -> pi - theta (through the part's
 coronal plane); it has no left/right twin and no part rule of the lists below applies to it.
+Given the layer's grid, a pattern that repeats round its tube (checks, plaid) is instead carried
+on round the unseen side by whole periods (``periodic_fill``).
 """
 
 from __future__ import annotations
@@ -49,8 +51,10 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from ..avatar.garment_layer import GARMENT_PART
 from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
 from .hair import face_coloured, hair_covered, hair_sources
+from .periodic_fill import continue_layer
 
 
 @dataclass(frozen=True)
@@ -176,7 +180,7 @@ def reliable_seen(seen: np.ndarray, normals: np.ndarray | None, parts: np.ndarra
 
 def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | None = None,
                      config: WrapFillConfig = WrapFillConfig(), normals=None, no_mirror=None,
-                     under_layer=None) -> torch.Tensor:
+                     under_layer=None, layer_grid: tuple[int, int, int] | None = None) -> torch.Tensor:
     """(N,3) float32 colours: the reliably seen Gaussians' own, the others (unseen, or seen only
     at grazing incidence when ``normals`` are given) filled as described in the module docstring.
     ``positions``, ``normals``: canonical (N,3); ``parts``: (N,) body-part indices; ``seen``: (N,)
@@ -186,7 +190,10 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     ``under_layer``: (N,) int, for the body Gaussians a garment layer's cloth hides the index of the
     layer Gaussian that hides each (``layer_cover.model_body_under_layer``), -1 elsewhere: those not
     reliably seen take that layer Gaussian's filled colour, so that what shows through the cloth
-    (an offset or a pose bringing the body through it, the gaps between its Gaussians) is the cloth."""
+    (an offset or a pose bringing the body through it, the gaps between its Gaussians) is the cloth.
+    ``layer_grid``: (rows, cols, tubes) of a garment layer whose Gaussians are the part
+    ``GARMENT_PART``, row-major: a pattern repeating round its tube is carried on round the unseen
+    side by whole periods (``periodic_fill``) instead of mirrored, and kept out of the smoothing."""
     cfg = config
     no_mirror = None if no_mirror is None else _as_np(no_mirror, bool)
     pos = _as_np(positions)
@@ -199,6 +206,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         return torch.as_tensor(np.clip(out, 0, 1), dtype=torch.float32)
     filled = np.zeros(len(pos), bool)
     front_only = np.zeros(len(pos), bool)  # unseen Gaussians of parts never seen behind their centre
+    periodic = np.zeros(len(pos), bool)  # unseen Gaussians a repeating pattern was carried onto
     for p in np.unique(parts):
         members = np.flatnonzero(parts == p)
         todo = members[~seen[members]]
@@ -270,6 +278,11 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             keep &= dp <= cfg.palette_tolerance
         out[todo] = np.where(keep[:, None], mirrored, low)
         filled[todo] = True
+        if layer_grid is not None and p == GARMENT_PART and len(members) == layer_grid[0] * layer_grid[1]:
+            # members are in index order: the layer's row-major grid
+            cont, done = continue_layer(col[members], seen[members], layer_grid[:2], layer_grid[2])
+            out[members[done]] = cont[done]
+            periodic[members[done]] = True
     rest = np.flatnonzero(~seen & ~filled)
     if len(rest):
         # the nearest seen or already filled Gaussian of any part: the back of a neck a photo's
@@ -285,6 +298,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         same = (nb >= 0) & (parts[np.maximum(nb, 0)] == parts[:, None])
         for sweep in range(sweeps):
             todo = unseen_all if sweep < cfg.smooth_sweeps else np.flatnonzero(front_only)
+            todo = todo[~periodic[todo]]
             s = out.copy()
             acc = s.copy()
             cnt = np.ones(len(s))

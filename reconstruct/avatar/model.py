@@ -499,6 +499,14 @@ class AvatarModel(nn.Module):
                      else canon.opacities)
         return PosedGaussians(means, normals, canon.colors, canon.scales, quats, opacities)
 
+    def layer_grid(self) -> tuple[int, int, int] | None:
+        """(rows, cols, tubes) of the garment layer's grid (its Gaussians follow the body's,
+        row-major), or None without a layer."""
+        if self.layer is None or self.num_layer == 0:
+            return None
+        R, C = self.layer.grid_shape
+        return int(R), int(C), int(self.layer.tubes)
+
     def parts(self) -> np.ndarray:
         """(N+M,) part index per Gaussian: the body texels' parts, then ``GARMENT_PART`` for the
         garment layer's (``garment_layer.AVATAR_PART_NAMES`` names them)."""

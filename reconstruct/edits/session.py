@@ -213,7 +213,8 @@ class EditSession:
         return wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted.cpu(),
                                 state.canonical(None).colors.detach().cpu(), self.neighbours,
                                 normals=model.base_normals.cpu() if self.grazing_rule else None,
-                                no_mirror=state.edits.redone, under_layer=model_body_under_layer(model))
+                                no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
+                                layer_grid=model.layer_grid())
 
     def undo(self) -> EditEntry | None:
         """Removes the last edit (kept for ``redo``); None when there is none."""

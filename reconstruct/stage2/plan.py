@@ -220,7 +220,7 @@ class Stage2Plan(StagePlan):
             return propagate_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours)
         return wrap_fill_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours,
                                 normals=model.base_normals.cpu() if self.grazing_rule else None, no_mirror=no_mirror,
-                                under_layer=model_body_under_layer(model))
+                                under_layer=model_body_under_layer(model), layer_grid=model.layer_grid())
 
     def reference_image(self, trainer: Trainer, frame: int | None) -> torch.Tensor:
         if frame is None:

@@ -1,0 +1,114 @@
+"""A pattern repeating round a tube carried on round its unseen side (reconstruct.appearance.
+periodic_fill): the period of checks seen on the front half of a tube, the continuation against
+the truth (and against the mirror image, which shifts the phase), no period for solid cloth,
+stripes round the tube or slowly varying shading, two tubes each with its own period, and the wrap
+fill using it for a garment layer's grid."""
+
+import numpy as np
+import pytest
+
+from reconstruct.appearance.periodic_fill import continue_layer, continue_round, tube_period
+from reconstruct.appearance.wrap_fill import wrap_fill_colors
+from reconstruct.avatar.garment_layer import GARMENT_PART
+
+A, B = np.array([0.7, 0.3, 0.2]), np.array([0.2, 0.6, 0.3])
+
+
+def checks(R, C, period, row_period=9.0, phase=0.37):
+    """(R,C,3) checks: smooth squares repeating every ``period`` columns and ``row_period`` rows."""
+    r, c = np.meshgrid(np.arange(R), np.arange(C), indexing="ij")
+    a = 0.5 + 0.5 * np.tanh(4 * np.sin(2 * np.pi * (c + phase) / period))
+    b = 0.5 + 0.5 * np.tanh(4 * np.sin(2 * np.pi * r / row_period))
+    t = 0.5 * (a + b)
+    return A * (1 - t[..., None]) + B * t[..., None]
+
+
+def front_half(R, C, half_width):
+    """Seen: the columns within ``half_width`` of column 0 (the front), wrapping."""
+    c = np.arange(C)
+    d = np.minimum(c, C - c)
+    return np.broadcast_to(d <= half_width, (R, C)).copy()
+
+
+def test_period_and_continuation_of_checks_against_the_truth():
+    R, C = 40, 92
+    P = C / 12  # twelve repeats round the tube, no seam
+    truth = checks(R, C, P)
+    seen = front_half(R, C, 24)
+    rng = np.random.default_rng(0)
+    noisy = truth + rng.normal(0, 0.02, truth.shape) * seen[..., None]
+    got = tube_period(noisy, seen)
+    assert got is not None and abs(got - P) < 0.1
+    out, done = continue_round(noisy, seen, got)
+    back = ~seen
+    assert done[back].all() and not done[seen].any()
+    err = np.abs(out - truth)[back].mean()
+    # the mirror image through the coronal plane (column c -> C/2 - c) gets the phase wrong
+    mirror_cols = (C // 2 - np.arange(C)) % C
+    mirrored = noisy[:, mirror_cols]
+    err_mirror = np.abs(mirrored - truth)[back].mean()
+    assert err < 0.04 and err_mirror > 3 * err
+
+
+@pytest.mark.parametrize("kind", ["solid", "stripes", "shading"])
+def test_no_period_without_a_repeating_pattern(kind):
+    R, C = 40, 92
+    r, c = np.meshgrid(np.arange(R), np.arange(C), indexing="ij")
+    rng = np.random.default_rng(1)
+    if kind == "solid":
+        col = np.broadcast_to(A, (R, C, 3)) + rng.normal(0, 0.03, (R, C, 3))
+    elif kind == "stripes":  # round the tube: the same colour along each row
+        t = (np.sin(2 * np.pi * r / 6.0) > 0).astype(float)
+        col = A * (1 - t[..., None]) + B * t[..., None] + rng.normal(0, 0.02, (R, C, 3))
+    else:  # a photo's light: bright in front, darker round the sides, folds along the rows
+        light = 0.6 + 0.4 * np.cos(2 * np.pi * c / C) + 0.1 * np.sin(2 * np.pi * r / 11.0)
+        col = A * light[..., None] + rng.normal(0, 0.02, (R, C, 3))
+    seen = front_half(R, C, 24)
+    assert tube_period(col, seen) is None
+    # nothing to continue: the wrap fill's layer is left to the other steps
+    out, done = continue_layer(col.reshape(-1, 3), seen.reshape(-1), (R, C), 1)
+    assert not done.any() and np.array_equal(out, col.reshape(-1, 3))
+
+
+def test_two_tubes_each_with_its_own_period_and_shape_errors():
+    R, C = 30, 96  # two tubes of 48 columns (trousers)
+    left, right = checks(R, 48, 48 / 8), checks(R, 48, 48 / 6, phase=1.1)
+    col = np.concatenate([left, right], 1)
+    seen = np.concatenate([front_half(R, 48, 13), front_half(R, 48, 13)], 1)
+    out, done = continue_layer(col.reshape(-1, 3), seen.reshape(-1), (R, C), 2)
+    out = out.reshape(R, C, 3)
+    assert done.reshape(R, C)[~seen].all()
+    assert np.abs(out - col)[~seen].mean() < 0.03
+    with pytest.raises(ValueError, match="for a 30x96 grid"):
+        continue_layer(col.reshape(-1, 3)[:-1], seen.reshape(-1)[:-1], (R, C), 2)
+    with pytest.raises(ValueError, match="do not split into 5 tubes"):
+        continue_layer(col.reshape(-1, 3), seen.reshape(-1), (R, C), 5)
+
+
+def test_wrap_fill_carries_the_layers_checks_round_by_periods():
+    R, C = 30, 92
+    truth = checks(R, C, C / 12)
+    th = 2 * np.pi * np.arange(C) / C
+    z = -0.02 * np.arange(R)
+    pos = np.stack([np.broadcast_to(0.2 * np.sin(th), (R, C)), np.broadcast_to(-0.2 * np.cos(th), (R, C)),
+                    np.broadcast_to(z[:, None], (R, C))], -1).reshape(-1, 3)
+    parts = np.full(R * C, GARMENT_PART)
+    seen = front_half(R, C, 24).reshape(-1)
+    col = truth.reshape(-1, 3)
+    with_grid = wrap_fill_colors(pos, parts, seen, col, None, layer_grid=(R, C, 1)).numpy()
+    without = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    back = ~seen
+    err = np.abs(with_grid - col)[back].mean()
+    assert err < 0.03 and np.abs(without - col)[back].mean() > 2 * err
+    np.testing.assert_allclose(with_grid[seen], col[seen].astype(np.float32), atol=1e-6)
+    # a solid layer: the grid changes nothing
+    solid = np.broadcast_to(A, (R * C, 3))
+    np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen, solid, None, layer_grid=(R, C, 1)).numpy(),
+                                  wrap_fill_colors(pos, parts, seen, solid, None).numpy())
+
+
+def test_a_period_finer_than_the_layer_is_not_carried():
+    R, C = 40, 92
+    col = checks(R, C, C / 23)  # 4 columns a period
+    assert tube_period(col, front_half(R, C, 24)) is None
+    assert tube_period(checks(R, C, C / 12), front_half(R, C, 24)) is not None
