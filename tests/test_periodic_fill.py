@@ -101,6 +101,12 @@ def test_wrap_fill_carries_the_layers_checks_round_by_periods():
     err = np.abs(with_grid - col)[back].mean()
     assert err < 0.03 and np.abs(without - col)[back].mean() > 2 * err
     np.testing.assert_allclose(with_grid[seen], col[seen].astype(np.float32), atol=1e-6)
+    # a region under a redo keeps the low-frequency fill (no copied detail)
+    redo = back & (np.arange(R * C) // C < 10)
+    redone = wrap_fill_colors(pos, parts, seen, col, None, no_mirror=redo, layer_grid=(R, C, 1)).numpy()
+    plain = wrap_fill_colors(pos, parts, seen, col, None, no_mirror=redo).numpy()
+    np.testing.assert_array_equal(redone[redo], plain[redo])
+    np.testing.assert_array_equal(redone[back & ~redo], with_grid[back & ~redo])
     # a solid layer: the grid changes nothing
     solid = np.broadcast_to(A, (R * C, 3))
     np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen, solid, None, layer_grid=(R, C, 1)).numpy(),

@@ -281,6 +281,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         if layer_grid is not None and p == GARMENT_PART and len(members) == layer_grid[0] * layer_grid[1]:
             # members are in index order: the layer's row-major grid
             cont, done = continue_layer(col[members], seen[members], layer_grid[:2], layer_grid[2])
+            if no_mirror is not None:  # a redo asks for the low-frequency fill only
+                done &= ~no_mirror[members]
             out[members[done]] = cont[done]
             periodic[members[done]] = True
     rest = np.flatnonzero(~seen & ~filled)
