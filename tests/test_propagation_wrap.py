@@ -233,7 +233,8 @@ def test_front_only_head_hat_over_hair_keeps_its_heights():
     hat = pos[:, 2] > 1.74
     truth[hat] = RED
     parts = np.full(len(pos), PART_INDEX["head"])
-    out = wrap_fill_colors(pos, parts, seen, truth, None, WrapFillConfig(smooth_sweeps=0)).numpy()
+    # the hair rule alone (no smoothing of either kind)
+    out = wrap_fill_colors(pos, parts, seen, truth, None, WrapFillConfig(smooth_sweeps=0, front_only_median=0)).numpy()
     back = ~seen
     np.testing.assert_allclose(out[back & (pos[:, 2] > 1.75)], np.tile(RED, ((back & (pos[:, 2] > 1.75)).sum(), 1)),
                                atol=1e-6)
@@ -287,7 +288,7 @@ def test_front_only_head_with_hair_across_the_face_stands_down():
 
 
 # ---------------------------------------------------------------------------------------------
-# parts never seen behind their centre: their backs are smoothed more (front_only_sweeps)
+# parts never seen behind their centre: their backs are smoothed more (front_only_median)
 
 
 def cylinder_neighbours(n_theta, n_z):
@@ -314,7 +315,7 @@ def test_front_only_part_back_is_smoothed_and_a_part_seen_behind_is_not():
     deg = np.abs(np.degrees(th))
     for seen, front_only in ((deg <= 80, True), (deg <= 100, False)):
         out = wrap_fill_colors(pos, parts, seen, col, nb).numpy()
-        off = wrap_fill_colors(pos, parts, seen, col, nb, WrapFillConfig(front_only_sweeps=0)).numpy()
+        off = wrap_fill_colors(pos, parts, seen, col, nb, WrapFillConfig(front_only_median=0)).numpy()
         back = deg > 150
         if front_only:
             # row-to-row differences down the back's middle shrink

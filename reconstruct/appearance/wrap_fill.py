@@ -29,8 +29,9 @@ positions (the body faces -Y, +Z up):
    only (fewer than ``k`` seen Gaussians behind its centre), the back and the crown take the
    hair's colour instead.
 4. **Smoothing.** A few Jacobi sweeps over the UV grid of the unseen Gaussians (seen ones fixed)
-   remove single-texel noise from the median choices; many more on a part the video never saw
-   behind its centre (``front_only_sweeps``), whose back has no evidence of a pattern of its own.
+   remove single-texel noise from the median choices. Before them, on a part the video never saw
+   behind its centre, whose back has no evidence of a pattern of its own, each unseen Gaussian
+   takes the per-channel median of the ``front_only_median`` nearest Gaussians of its part.
 
 A part with no seen Gaussian borrows from its left/right twin (mirrored in x), then the colours
 are the nearest seen or already filled ones of any part.
@@ -66,15 +67,18 @@ class WrapFillConfig:
     palette_tolerance: float = 0.12  # per-channel RGB difference within which a mirrored colour counts as a band colour
     max_mirror_distance: float = 0.04  # metres: farther mirror matches are not used
     smooth_sweeps: int = 2
-    # ... and on the parts the video never saw behind their centre (fewer than ``k`` reliably seen
-    # Gaussians behind it: a photo, a video that never turned), this many in all. Their band is
-    # the silhouette's sides only, seen at one angle under one light, and the same-height medians
-    # carry its folds and shading round as blotches and bands (the coat photo's back); with no
-    # evidence of how a pattern continues behind, the back is the band's colours smoothed. On the
-    # synthetic scenes (walking in place, seen behind the torso's centre) it applies to few
-    # parts; all parts smoothed this much: garment seed 0 31.80 -> 31.73, coat seed 1 27.06 ->
+    # parts the video never saw behind their centre (fewer than ``k`` reliably seen Gaussians
+    # behind it: a photo, a video that never turned): their band is the silhouette's sides only,
+    # seen at one angle under one light, and the same-height medians carry its folds and shading
+    # round as blotches and bands (the coat photo's back). With no evidence of how a pattern
+    # continues behind, each unseen Gaussian there takes the per-channel median of this many
+    # nearest Gaussians of its part (seen ones included): blotches smaller than its reach go, the
+    # colours and boundaries of larger regions stay. (A mean -- 40 Jacobi sweeps -- smoothed as
+    # well but blended hair, skin and cloth: a pink patch across the red-dress photo's upper back.)
+    # On the synthetic scenes (walking in place, seen behind the torso's centre) it applies to few
+    # parts; all parts smoothed by 40 sweeps: tight seed 0 31.80 -> 31.73, coat seed 1 27.06 ->
     # 26.98, dress seed 0 30.82 -> 30.95 dB unseen
-    front_only_sweeps: int = 40
+    front_only_median: int = 200
     # parts whose front is not continued by mirroring (step 3 off): the head (the face is the
     # front's own; the back is the hair of the crown and sides) and the feet (the toe cap)
     no_mirror_parts: tuple[str, ...] = ("head", "foot.L", "foot.R")
@@ -293,14 +297,25 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         src = np.flatnonzero(seen | filled)
         _, idx = cKDTree(pos[src]).query(pos[rest])
         out[rest] = out[src[idx]]
-    # 4. a few Jacobi sweeps over the UV grid on the unseen Gaussians
-    sweeps = max(cfg.smooth_sweeps, cfg.front_only_sweeps if front_only.any() else 0)
-    if neighbours is not None and sweeps > 0:
+    # 4a. parts never seen behind their centre: the per-channel median of the nearest Gaussians of
+    # the part (seen ones included), which removes blotches smaller than its reach and keeps the
+    # colours and the boundaries of larger regions (a mean would blend hair, skin and cloth)
+    if cfg.front_only_median > 1 and front_only.any():
+        snap = out.copy()
+        for p in np.unique(parts[front_only]):
+            members = np.flatnonzero(parts == p)
+            todo = members[front_only[members] & ~periodic[members]]
+            k = min(cfg.front_only_median, len(members))
+            if len(todo) == 0 or k < 2:
+                continue
+            _, nn = cKDTree(pos[members]).query(pos[todo], k=k)
+            out[todo] = np.median(snap[members][nn], axis=1)
+    # 4b. a few Jacobi sweeps over the UV grid on the unseen Gaussians
+    if neighbours is not None and cfg.smooth_sweeps > 0:
         nb = np.asarray(neighbours)
         same = (nb >= 0) & (parts[np.maximum(nb, 0)] == parts[:, None])
-        for sweep in range(sweeps):
-            todo = unseen_all if sweep < cfg.smooth_sweeps else np.flatnonzero(front_only)
-            todo = todo[~periodic[todo]]
+        todo = unseen_all[~periodic[unseen_all]]
+        for _ in range(cfg.smooth_sweeps):
             s = out.copy()
             acc = s.copy()
             cnt = np.ones(len(s))
