@@ -58,6 +58,7 @@ GARMENT_PART_NAME = "garment"
 GARMENT_PART = len(PART_NAMES)
 AVATAR_PART_NAMES: tuple[str, ...] = (*PART_NAMES, GARMENT_PART_NAME)
 _HINT_FIELDS = ("top_z", "hem_z", "standoff_top", "standoff_hem")
+_HINT_SIDE_FIELDS = ("side_left", "side_right")  # absent in checkpoints from before flaps: 0
 
 
 def _roll_columns(a, shift: int, tubes: int):
@@ -79,6 +80,11 @@ class VolumeHint:
     standoff_top: float = 0.012
     standoff_hem: float = 0.06
     two_legs: bool = False  # one tube round each leg (trousers) instead of one round both
+    # metres the cloth stands out sideways past the body at the body's left (+X) and right (-X):
+    # each ring's half on that side is stretched sideways by as much (``build_garment_layer``): an open coat's or
+    # jacket's flap hanging off one side (``frame_flap_evidence``); 0 for a layer round the body
+    side_left: float = 0.0
+    side_right: float = 0.0
 
     @property
     def tubes(self) -> int:
@@ -88,7 +94,7 @@ class VolumeHint:
     def __post_init__(self) -> None:
         if not self.hem_z < self.top_z:
             raise ValueError(f"volume hint: hem ({self.hem_z:.3f} m) must be below the top ({self.top_z:.3f} m)")
-        if self.standoff_top < 0 or self.standoff_hem < 0:
+        if min(self.standoff_top, self.standoff_hem, self.side_left, self.side_right) < 0:
             raise ValueError("volume hint: standoffs must be >= 0")
 
 
@@ -159,7 +165,7 @@ class GarmentLayer:
                 "tangents": self.tangents.detach().cpu().clone(), "weights": self.weights.detach().cpu().clone(),
                 "spacing": self.spacing.detach().cpu().clone(),
                 "grid_shape": [int(self.grid_shape[0]), int(self.grid_shape[1])],
-                "hint": {**{k: float(getattr(self.hint, k)) for k in _HINT_FIELDS},
+                "hint": {**{k: float(getattr(self.hint, k)) for k in _HINT_FIELDS + _HINT_SIDE_FIELDS},
                          "two_legs": bool(self.hint.two_legs)}}
 
     @staticmethod
@@ -181,6 +187,9 @@ class GarmentLayer:
         two_legs = hint.get("two_legs", False)  # absent in checkpoints from before trousers: one tube
         if not isinstance(two_legs, bool):
             raise ValueError(f"{what}: hint two_legs must be true or false, found {two_legs!r}")
+        sides = {k: hint.get(k, 0.0) for k in _HINT_SIDE_FIELDS}
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in sides.values()):
+            raise ValueError(f"{what}: hint {' and '.join(_HINT_SIDE_FIELDS)} must be numbers, found {sides!r}")
         if two_legs and int(shape[1]) % 2:
             raise ValueError(f"{what}: a two-legged layer needs an even number of columns, found {shape[1]}")
         n = int(shape[0]) * int(shape[1])
@@ -199,7 +208,8 @@ class GarmentLayer:
             raise ValueError(f"{what}: weights must be a float tensor of shape ({n}, "
                              f"{num_joints if num_joints is not None else 'joints'}), found {found}")
         try:
-            volume = VolumeHint(**{k: float(hint[k]) for k in _HINT_FIELDS}, two_legs=two_legs)
+            volume = VolumeHint(**{k: float(hint[k]) for k in _HINT_FIELDS}, two_legs=two_legs,
+                                **{k: float(v) for k, v in sides.items()})
         except ValueError as exc:
             raise ValueError(f"{what}: {exc}") from None
         return GarmentLayer(out["positions"], out["normals"], out["tangents"], w.float(), out["spacing"],
@@ -209,8 +219,10 @@ class GarmentLayer:
         R, C = self.grid_shape
         h = self.hint
         tubes = " in two tubes (one per leg)" if self.tubes == 2 else ""
+        sides = "".join(f", {name} side +{100 * v:.1f} cm" for name, v in (("left", h.side_left), ("right", h.side_right))
+                        if v > 0)
         return (f"garment layer: {self.num_gaussians:,} Gaussians ({R} rows x {C} columns{tubes}), top {h.top_z:.3f} m, "
-                f"hem {h.hem_z:.3f} m, flare {100 * h.standoff_hem:.1f} cm")
+                f"hem {h.hem_z:.3f} m, flare {100 * h.standoff_hem:.1f} cm{sides}")
 
     def skinning(self, body: BodyModel) -> Skinning:
         return body.skinning(self.weights.to(torch.float64))
@@ -368,6 +380,13 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None =
         if not hint.two_legs:
             radii[start:] = np.maximum.accumulate(radii[start:], axis=0)  # cloth hangs: no narrowing
         xy = centres[:, None, :] + radii[..., None] * d[None]
+        # a flap standing out sideways: each ring's half on that side stretched in x about the ring's
+        # centre so that its outermost point moves out by the side's standoff (front and back stay)
+        for side, sgn in ((hint.side_left, 1.0), (hint.side_right, -1.0)):
+            if side > 0:
+                rel = (xy[..., 0] - centres[:, None, 0]) * sgn  # (R,C) metres towards that side
+                reach = np.maximum(rel.max(1, keepdims=True), 1e-3)
+                xy[..., 0] += np.where(rel > 0, rel * side / reach, 0.0) * sgn
         grids.append(np.concatenate([xy, np.broadcast_to(zs[:, None, None], (rows, cols, 1))], -1))
     P = np.concatenate(grids, axis=1)  # (rows, tubes*cols, 3)
     # normals and tangents from the grid (round each tube)
@@ -445,6 +464,7 @@ class HintEvidence:
     rows: tuple[int, int] | None = None  # image rows: the first tested one, the run's lowest
     legs: "LegEvidence | None" = None  # what the same frame says about wide trouser legs
     torso: "TorsoEvidence | None" = None  # what the same frame says about cloth off the torso
+    flaps: "FlapEvidence | None" = None  # what the same frame says about cloth hanging off one side
 
 
 @dataclass(frozen=True)
@@ -456,6 +476,19 @@ class TorsoEvidence:
 
     testable: bool
     standoff: float = 0.0
+
+
+@dataclass(frozen=True)
+class FlapEvidence:
+    """What one front-view frame says about cloth standing out sideways past the body from the
+    chest down (``frame_flap_evidence``): an open coat's or jacket's flap. ``testable``: enough
+    image rows between the chest and the knees read on both sides; per side of the body (``left``
+    = +X, ``right``), None or (standoff metres, top canonical height, lowest canonical height) of
+    its flap."""
+
+    testable: bool
+    left: tuple[float, float, float] | None = None
+    right: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -647,9 +680,82 @@ def frame_torso_evidence(body: BodyModel, frame, *, rows_per_metre: float = 100.
     return TorsoEvidence(True, float(np.median(standoffs)))
 
 
+MIN_FLAP = 0.04  # metres a side of the mask must stand out past the body to be a flap
+
+
+def frame_flap_evidence(body: BodyModel, frame, *, rows_per_metre: float = 100.0, min_flap: float = MIN_FLAP,
+                        min_span: float = 0.15, max_break: float = 0.03, min_rows: float = 0.5,
+                        silhouette: np.ndarray | None = None) -> FlapEvidence:
+    """One frame's evidence about flaps (``FlapEvidence``). Image rows at canonical heights from
+    ``torso_top_height`` down to the knees, one every 1 / ``rows_per_metre`` metres, placed along
+    the posed spine and, below the hips, along the midpoint of the hips and then the knees. For
+    each side of the body, the run of mask pixels that holds that side's anchor (the spine above
+    the hips, that side's thigh axis below) is read against the posed body's own silhouette
+    (arms included) inside that run: how far the mask's outer end lies past the body's outermost
+    pixel on that side, in metres at the waist's depth. An arm or a hand against the side is in
+    both and adds nothing. A side has a flap when its standoff reaches ``min_flap`` over a run of
+    rows (breaks of at most ``max_break``; the longest run) spanning ``min_span`` of height: the
+    symmetric standoff of a closed coat (``frame_torso_evidence``) is centimetres, a flap a hand
+    or more. Its standoff is the 75th percentile of the run's rows (clipped to 30 cm)."""
+    L = body.bone_labels
+    J = body.canonical_joints.numpy()
+    P = body.posed_joints(frame.pose).numpy()
+    idx = lambda n: L.index(n)  # noqa: E731
+    hips_c = 0.5 * (J[idx("upperleg01.L")] + J[idx("upperleg01.R")])
+    knees_c = 0.5 * (J[idx("lowerleg01.L")] + J[idx("lowerleg01.R")])
+    chain = [P[idx(n)] for n in reversed(_TORSO_CHAIN)] + [0.5 * (P[idx("upperleg01.L")] + P[idx("upperleg01.R")]),
+                                                           0.5 * (P[idx("lowerleg01.L")] + P[idx("lowerleg01.R")])]
+    cz = np.array([J[idx(n), 2] for n in reversed(_TORSO_CHAIN)] + [hips_c[2], knees_c[2]])  # decreasing
+    uv, depth = frame.camera.project(np.array(chain))
+    legs = {s: frame.camera.project(P[[idx(f"upperleg01.{s}"), idx(f"lowerleg01.{s}")]])[0] for s in "LR"}
+    leg_z = np.array([hips_c[2], knees_c[2]])
+    outward = {"L": np.sign(legs["L"][0, 0] - legs["R"][0, 0]) or 1.0}
+    outward["R"] = -outward["L"]
+    mask = np.asarray(frame.mask) > 0.5
+    sil = silhouette if silhouette is not None else body_silhouette(body, frame)
+    metres_per_px = float(depth[len(_TORSO_CHAIN) - 1]) / float(frame.camera.fx)  # at spine03, the waist
+    top = torso_top_height(body)
+    heights = np.linspace(top, knees_c[2], max(2, int(round((top - knees_c[2]) * rows_per_metre)) + 1))
+    read = {"L": [], "R": []}  # (height, standoff) of the rows read on each side
+    for z in heights:
+        r = int(round(np.interp(-z, -cz, uv[:, 1])))
+        if not 0 <= r < mask.shape[0]:
+            continue
+        for s in "LR":
+            if z >= hips_c[2]:
+                x = np.interp(-z, -cz, uv[:, 0])
+            else:
+                x = np.interp(-z, -leg_z, legs[s][:, 0])
+            run = _run_around(mask[r], int(round(x)))
+            if run is None:
+                continue
+            inside = np.flatnonzero(sil[r, run[0]:run[1] + 1])
+            if not len(inside):
+                continue
+            past = (run[1] - run[0] - inside.max()) if outward[s] > 0 else inside.min()
+            read[s].append((float(z), past * metres_per_px))
+    if min(len(read["L"]), len(read["R"])) < min_rows * len(heights):
+        return FlapEvidence(False)
+    found = {}
+    for s in "LR":
+        runs: list[list[tuple[float, float]]] = []
+        for z, v in read[s]:
+            if v < min_flap:
+                continue
+            if runs and runs[-1][-1][0] - z <= max_break + 1.0 / rows_per_metre:
+                runs[-1].append((z, v))
+            else:
+                runs.append([(z, v)])
+        best = max(runs, key=lambda rr: rr[0][0] - rr[-1][0], default=None)
+        if best is not None and best[0][0] - best[-1][0] >= min_span:
+            found[s] = (float(min(np.percentile([v for _, v in best], 75), 0.30)), best[0][0], best[-1][0])
+    return FlapEvidence(True, found.get("L"), found.get("R"))
+
+
 def scene_hint_evidence(body: BodyModel, frames, *, max_frames: int = 8, **thresholds) -> list[HintEvidence]:
     """``frame_hint_evidence`` (with its ``thresholds``), with ``frame_leg_evidence`` as its
-    ``legs`` and ``frame_torso_evidence`` as its ``torso``, for up to ``max_frames`` frames spread
+    ``legs``, ``frame_torso_evidence`` as its ``torso`` and ``frame_flap_evidence`` as its
+    ``flaps``, for up to ``max_frames`` frames spread
     evenly over the sequence."""
     picks = np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)
     out = []
@@ -657,7 +763,8 @@ def scene_hint_evidence(body: BodyModel, frames, *, max_frames: int = 8, **thres
         sil = body_silhouette(body, frames[i])
         out.append(replace(frame_hint_evidence(body, frames[i], silhouette=sil, **thresholds),
                            legs=frame_leg_evidence(body, frames[i], silhouette=sil),
-                           torso=frame_torso_evidence(body, frames[i], silhouette=sil)))
+                           torso=frame_torso_evidence(body, frames[i], silhouette=sil),
+                           flaps=frame_flap_evidence(body, frames[i], silhouette=sil)))
     return out
 
 
@@ -694,10 +801,33 @@ def hint_from_evidence(body: BodyModel, evidence: list[HintEvidence], *, min_sha
     legs = [e.legs for e in evidence if e.legs is not None and e.legs.testable]
     wide = [e for e in legs if e.wide]
     if not wide or len(wide) < min_share * len(legs):
-        return None
+        return flap_hint(body, evidence, min_share=min_share)
     hem = float(np.clip(np.median([e.hem_z for e in wide]), marks["ankle"] + 0.02, marks["hips"] - 0.1))
     flare = float(np.clip(np.median([e.flare for e in wide]), 0.02, 0.15))
     return VolumeHint(top_z=marks["waist"], hem_z=hem, standoff_hem=flare, two_legs=True)
+
+
+def flap_hint(body: BodyModel, evidence: list[HintEvidence], *, min_share: float = 0.5) -> VolumeHint | None:
+    """A layer for flaps (``FlapEvidence``) when nothing else is loose: per side of the body, a flap
+    when at least ``min_share`` of the frames whose flaps are testable show one there, standing
+    out by the median of their standoffs. The layer covers the torso from ``torso_top_height``
+    (an open jacket's body; where it is open the learned opacity shows what is under it) down
+    past the lowest flap's median hem, 1.2 cm off the body, bulging sideways by each side's
+    standoff (``VolumeHint.side_left`` / ``side_right``). None without a flap."""
+    flaps = [e.flaps for e in evidence if e.flaps is not None and e.flaps.testable]
+    sides, hems = {}, []
+    for name in ("left", "right"):
+        shown = [getattr(f, name) for f in flaps if getattr(f, name) is not None]
+        if shown and len(shown) >= min_share * len(flaps):
+            sides[name] = float(np.median([v[0] for v in shown]))
+            hems.append(float(np.median([v[2] for v in shown])))
+    if not sides:
+        return None
+    marks = landmark_heights(body)
+    top = torso_top_height(body)
+    hem = float(np.clip(min(hems), marks["knee"], top - 0.15))
+    return VolumeHint(top_z=top, hem_z=hem, standoff_top=0.012, standoff_hem=0.012,
+                      side_left=sides.get("left", 0.0), side_right=sides.get("right", 0.0))
 
 
 def volume_hint_from_masks(body: BodyModel, frames, *, max_frames: int = 8, min_share: float = 0.5,
