@@ -25,7 +25,10 @@ This layer adds Gaussians where the silhouette says there is something:
   gap, each lower leg's mask run is compared with the body's own (``frame_leg_evidence``): legs
   that stand out by 2.5 cm or more over 10 cm of height are wide trousers, and the layer is two
   tubes, one round each leg (``VolumeHint.two_legs``; the grid's columns hold both, each wrapping
-  round on itself). Tight clothing gives no hint (None): no layer.
+  round on itself). Failing both, a side of the mask standing 4 cm or more past the body from the
+  chest down (``frame_flap_evidence``: an open coat's or jacket's flap) gives a layer over the
+  torso whose rings are stretched sideways towards that side (``flap_hint``). Tight clothing gives
+  no hint (None): no layer.
 
 ``AvatarModel(..., layer=...)`` appends the layer's Gaussians after the body's (its own feature map
 over the grid, the shared decoder, a learned opacity); ``garment_layer_for`` builds the layer a
