@@ -612,6 +612,81 @@ def test_layer_faced_training_is_the_front_of_the_tube_for_a_front_camera(layere
     assert faced[front].float().mean() > 0.9 and faced[back].float().mean() < 0.1
 
 
+def test_layer_off_person_is_where_a_frame_shows_background(layered):
+    """Against an independent reference: each posed layer centre projected with the camera's
+    matrices in float64, read on the mask grown by the margin (scipy), over every training frame;
+    and a mask emptied over the right half of one frame makes the layer there off the person."""
+    import dataclasses
+
+    from scipy.ndimage import binary_dilation
+
+    from reconstruct.train.unseen_fill import layer_off_person
+
+    t = layered
+    N = t.model.num_body
+
+    def reference(targets) -> torch.Tensor:
+        out = torch.zeros(t.model.num_layer, dtype=torch.bool)
+        for i in t.data.frames:
+            cam = targets[i].camera
+            x = t.state.posed(i).means[N:].detach().double().numpy()
+            xc = x @ np.asarray(cam.R, np.float64).T + np.asarray(cam.t, np.float64)
+            u = np.floor(cam.fx * xc[:, 0] / xc[:, 2] + cam.cx).astype(int)
+            v = np.floor(cam.fy * xc[:, 1] / xc[:, 2] + cam.cy).astype(int)
+            grown = binary_dilation(targets[i].mask.numpy() > 0.5, iterations=2)
+            h, w = grown.shape
+            ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            on = np.zeros(len(x), bool)
+            on[ok] = grown[v[ok], u[ok]]
+            out |= torch.as_tensor((xc[:, 2] > 0) & ~on)
+        return out
+
+    got = layer_off_person(t.state, t.data, margin=2)
+    assert torch.equal(got, reference(t.data.targets))
+    i = t.data.frames[0]
+    saved = t.data.targets[i]
+    try:
+        half = saved.mask.clone()
+        half[:, half.shape[1] // 2:] = 0
+        t.data.targets[i] = dataclasses.replace(saved, mask=half)
+        cut = layer_off_person(t.state, t.data, margin=2)
+        assert torch.equal(cut, reference(t.data.targets))
+        assert int(cut.sum()) > int(got.sum())  # the case is real: the emptied half adds Gaussians
+    finally:
+        t.data.targets[i] = saved
+
+
+def test_layer_gaussians_a_frame_shows_empty_keep_their_opacity(layered):
+    """``empty`` flags leave those layer Gaussians at their learned opacity; the others are filled
+    as without them; a wrong shape is named."""
+    from reconstruct.train.unseen_fill import fill_unseen_layer_opacity
+
+    t = layered
+    m, state = t.model, t.state
+    N = m.num_body
+    cols = m.layer_rc[:, 1]
+    C = m.layer.grid_shape[1]
+    saved_seen, saved_op = state.seen.clone(), m.layer_opacity.detach().clone()
+    try:
+        with torch.no_grad():
+            m.layer_opacity.copy_(torch.logit(0.2 + 0.6 * cols.float() / C) / m.config.garment_opacity_gain)
+        trained = cols < C // 2
+        empty = (cols >= C // 2) & (cols % 2 == 0)
+        state.seen[:] = False
+        before = m.opacities().detach().clone()
+        n = fill_unseen_layer_opacity(state, trained, erosion=0, empty=empty)
+        assert n == int((~trained & ~empty).sum())
+        after = m.opacities().detach()[N:]
+        assert torch.allclose(after[empty], before[N:][empty])
+        assert not torch.allclose(after[~trained & ~empty], before[N:][~trained & ~empty])
+        with pytest.raises(ValueError, match="empty flags must have shape"):
+            fill_unseen_layer_opacity(state, trained, empty=empty[:-1])
+    finally:
+        state.seen.copy_(saved_seen)
+        with torch.no_grad():
+            m.layer_opacity.copy_(saved_op)
+
+
 def test_layer_rings_follow_the_slice_hull_without_bulging_in_depth(body, layer):
     """Each ring is the convex hull of the body slice pushed out by the row's standoff: it is
     deepest straight in front (column 0) and straight behind (column C/2), and within the slice's

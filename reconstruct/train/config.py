@@ -109,6 +109,10 @@ class Stage1Config(StageSettings):
     # not: that frame fitted it, and the fill would change it (train/seen_recount.py; None: first
     # hits only)
     seen_min_weight: float | None = 0.25
+    # ... and the garment layer's Gaussians that stand on the background in some training frame
+    # (more than 2 px off the mask: empty air, whichever way they face) keep their learned opacity
+    # instead of the row's (train/unseen_fill.py, layer_off_person)
+    layer_off_person: bool = True
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # each given-view step composites its target on a uniformly random colour and renders over the
@@ -164,7 +168,8 @@ class Stage1Config(StageSettings):
         """The settings before the Stage I fidelity work (GaussianAvatar's schedule, every Gaussian
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False,
-                    seen_on_person=False, seen_min_weight=None, random_background=False, avatar=AvatarConfig.paper())
+                    seen_on_person=False, seen_min_weight=None, layer_off_person=False, random_background=False,
+                    avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
 
     @classmethod
@@ -179,6 +184,7 @@ class Stage1Config(StageSettings):
         d.setdefault("random_background", False)  # recorded before training on random backgrounds
         d.setdefault("seen_on_person", False)  # recorded before the seen flags were recounted on the person
         d.setdefault("seen_min_weight", None)  # recorded before the recount counted blended Gaussians
+        d.setdefault("layer_off_person", False)  # recorded before the layer's fill left off-person Gaussians empty
         d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
         d.setdefault("lambda_layer_cover", 0.0)  # recorded before the layer's cover prior existed
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:

@@ -13,7 +13,8 @@ from .config import Stage1Config, StageSettings
 from ..appearance.wrap_fill import grazing_rule_for
 from .seen_recount import keep_seen_on_person, person_coverage
 from .steps import GivenViewStep, TrainingStep
-from .unseen_fill import fill_unseen_colors, fill_unseen_layer_opacity, layer_faced_training, layer_reached
+from .unseen_fill import (fill_unseen_colors, fill_unseen_layer_opacity, layer_faced_training, layer_off_person,
+                          layer_reached)
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
@@ -96,7 +97,8 @@ class Stage1Plan(StagePlan):
                 trained = layer_faced_training(state, context.data)
                 if coverage is not None:
                     trained |= layer_reached(state, coverage.total_max, s.seen_min_weight)
-                n_layer = fill_unseen_layer_opacity(state, trained)
+                empty = layer_off_person(state, context.data) if s.layer_off_person else None
+                n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
                                    not_sources=blended_only)
             if n:

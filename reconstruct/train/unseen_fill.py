@@ -37,7 +37,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numpy as np
 import torch
+from scipy.ndimage import binary_dilation
 
 from ..appearance.propagation import erode
 from ..appearance.wrap_fill import wrap_fill_colors
@@ -136,9 +138,37 @@ def layer_reached(state: AvatarState, total_max: torch.Tensor, min_weight: float
 
 
 @torch.no_grad()
-def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, erosion: int = 2) -> int:
-    """Give every garment-layer Gaussian that is not ``trained`` ((M,) bool, ``layer_faced_training``)
-    and not painted seen the median opacity of the trained ones (eroded by ``erosion`` grid steps)
+def layer_off_person(state: AvatarState, data: TrainingData, *, margin: int = 2) -> torch.Tensor:
+    """(M,) bool: the garment-layer Gaussians whose posed centre lands on the background in some
+    training frame: in front of the camera, and outside the frame's crop or more than ``margin``
+    pixels off its mask. Nothing opaque can stand between such a Gaussian and the camera (the
+    mask is empty there), so the frame shows it is empty air, whichever way its normal faces:
+    the rings of a layer stretched sideways for a flap, seen edge-on past the flap's outer end."""
+    model = state.model
+    N, M = model.num_body, model.num_layer
+    off = torch.zeros(M, dtype=torch.bool)
+    if M == 0:
+        return off
+    for i in data.frames:
+        target = data.targets[i]
+        mask = binary_dilation(target.mask.cpu().numpy() > 0.5, iterations=margin) if margin > 0 else (
+            target.mask.cpu().numpy() > 0.5)
+        h, w = mask.shape
+        uv, z = target.camera.project(state.posed(i).means[N:].detach().cpu().double().numpy())
+        u, v = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        on = np.zeros(M, bool)
+        on[inside] = mask[v[inside], u[inside]]
+        off |= torch.as_tensor((z > 0) & ~on)
+    return off
+
+
+@torch.no_grad()
+def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, erosion: int = 2,
+                              empty: torch.Tensor | None = None) -> int:
+    """Give every garment-layer Gaussian that is not ``trained`` ((M,) bool, ``layer_faced_training``),
+    not ``empty`` ((M,) bool, ``layer_off_person``: a training frame shows background where it
+    stands; it keeps its learned opacity) and not painted seen the median opacity of the trained ones (eroded by ``erosion`` grid steps)
     in its grid row, or in the nearest row that has any; below the hem (the first row under the most
     opaque one with a median below 0.5) those medians are made non-increasing down the rows (no
     ring of cloth below the hem), and medians below 0.1
@@ -153,6 +183,12 @@ def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, eros
         raise ValueError(f"fill_unseen_layer_opacity: trained flags must have shape ({model.num_layer},), "
                          f"found {tuple(trained.shape)}")
     todo = ~trained & ~state.edits.paint(state.seen).cpu().bool()[N:]
+    if empty is not None:
+        empty = torch.as_tensor(empty, dtype=torch.bool).cpu()
+        if empty.shape != (model.num_layer,):
+            raise ValueError(f"fill_unseen_layer_opacity: empty flags must have shape ({model.num_layer},), "
+                             f"found {tuple(empty.shape)}")
+        todo &= ~empty
     full = torch.ones(model.num_gaussians, dtype=torch.bool)
     full[N:] = trained
     sources = torch.as_tensor(erode(full.numpy(), model.neighbours(), erosion))[N:]
