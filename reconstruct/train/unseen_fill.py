@@ -99,24 +99,30 @@ _OPACITY_MARGIN = 1e-3
 _EMPTY_LAYER_OPACITY = 0.1
 
 
-@torch.no_grad()
+def _in_some_frame(state: AvatarState, data: TrainingData, flag) -> torch.Tensor:
+    """(M,) bool: the garment-layer Gaussians for which ``flag(posed, target)`` ((M,) bool from the
+    frame's posed layer Gaussians and its ``FrameTarget``) holds in some training frame."""
+    model = state.model
+    N, M = model.num_body, model.num_layer
+    out = torch.zeros(M, dtype=torch.bool)
+    if M == 0:
+        return out
+    with torch.no_grad():
+        for i in data.frames:
+            posed = state.posed(i)
+            out |= torch.as_tensor(flag(posed.means[N:].detach(), posed.normals[N:].detach(), data.targets[i])).cpu()
+    return out
+
+
 def layer_faced_training(state: AvatarState, data: TrainingData, *, min_cos: float = 0.2) -> torch.Tensor:
     """(M,) bool: the garment-layer Gaussians that faced a training camera in some frame (the cosine
     between the posed normal and the direction to the camera at least ``min_cos``): those whose
     opacity training could have set, opaque cloth or empty air (a Gaussian the alpha loss made
     transparent is no first hit, so the seen flags cannot tell it from one never trained)."""
-    model = state.model
-    N, M = model.num_body, model.num_layer
-    faced = torch.zeros(M, dtype=torch.bool)
-    if M == 0:
-        return faced
-    for i in data.frames:
-        posed = state.posed(i)
-        centre = torch.as_tensor(data.targets[i].camera.center, dtype=posed.means.dtype, device=posed.means.device)
-        to_cam = centre - posed.means[N:]
-        cos = (to_cam * posed.normals[N:]).sum(1) / to_cam.norm(dim=1).clamp_min(1e-9)
-        faced |= (cos >= min_cos).cpu()
-    return faced
+    def faced(means, normals, target):
+        to_cam = torch.as_tensor(target.camera.center, dtype=means.dtype, device=means.device) - means
+        return (to_cam * normals).sum(1) / to_cam.norm(dim=1).clamp_min(1e-9) >= min_cos
+    return _in_some_frame(state, data, faced)
 
 
 def layer_reached(state: AvatarState, total_max: torch.Tensor, min_weight: float) -> torch.Tensor:
@@ -137,30 +143,24 @@ def layer_reached(state: AvatarState, total_max: torch.Tensor, min_weight: float
     return (total_max[N:].double() / opacity.clamp_min(1e-6)) >= min_weight
 
 
-@torch.no_grad()
 def layer_off_person(state: AvatarState, data: TrainingData, *, margin: int = 2) -> torch.Tensor:
     """(M,) bool: the garment-layer Gaussians whose posed centre lands on the background in some
     training frame: in front of the camera, and outside the frame's crop or more than ``margin``
     pixels off its mask. Nothing opaque can stand between such a Gaussian and the camera (the
     mask is empty there), so the frame shows it is empty air, whichever way its normal faces:
     the rings of a layer stretched sideways for a flap, seen edge-on past the flap's outer end."""
-    model = state.model
-    N, M = model.num_body, model.num_layer
-    off = torch.zeros(M, dtype=torch.bool)
-    if M == 0:
-        return off
-    for i in data.frames:
-        target = data.targets[i]
-        mask = binary_dilation(target.mask.cpu().numpy() > 0.5, iterations=margin) if margin > 0 else (
-            target.mask.cpu().numpy() > 0.5)
+    def off(means, normals, target):
+        mask = target.mask.cpu().numpy() > 0.5
+        if margin > 0:
+            mask = binary_dilation(mask, iterations=margin)
         h, w = mask.shape
-        uv, z = target.camera.project(state.posed(i).means[N:].detach().cpu().double().numpy())
+        uv, z = target.camera.project(means.cpu().double().numpy())
         u, v = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
         inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        on = np.zeros(M, bool)
+        on = np.zeros(len(u), bool)
         on[inside] = mask[v[inside], u[inside]]
-        off |= torch.as_tensor((z > 0) & ~on)
-    return off
+        return (z > 0) & ~on
+    return _in_some_frame(state, data, off)
 
 
 @torch.no_grad()
