@@ -118,3 +118,28 @@ def test_a_period_finer_than_the_layer_is_not_carried():
     col = checks(R, C, C / 23)  # 4 columns a period
     assert tube_period(col, front_half(R, C, 24)) is None
     assert tube_period(checks(R, C, C / 12), front_half(R, C, 24)) is not None
+
+
+def test_one_band_seen_once_is_no_period():
+    """An open jacket seen from the front of a photo: the shirt between the flaps is one light band
+    with the cloth on either side, seen over less than two of any period it could have. Shifting by
+    nearly the seen width pairs one flap with the other (alike) and half of it the shirt with a
+    flap (unlike), which alone looks like a period; no pair two periods apart was seen, so the
+    pattern was never seen to repeat, and nothing is carried round the back. A band seen over
+    more than two of its periods still is."""
+    R, C = 47, 92
+    c = np.arange(C)
+    d = np.minimum(c, C - c)
+    band = (d <= 5).astype(float)
+    rng = np.random.default_rng(2)
+    col = np.broadcast_to(A * 0.4 * (1 - band[:, None]) + np.array([0.9, 0.9, 0.9]) * band[:, None], (R, C, 3))
+    col = col + rng.normal(0, 0.02, (R, C, 3))
+    seen = front_half(R, C, 15)
+    assert tube_period(col, seen) is None
+    out, done = continue_layer(col.reshape(-1, 3), seen.reshape(-1), (R, C), 1)
+    assert not done.any()
+    # the same band repeating every 23 columns, seen over 2.7 periods: a period
+    rep = np.minimum(c % 23, 23 - c % 23) <= 5
+    col2 = np.where(rep[None, :, None], np.array([0.9, 0.9, 0.9]), A * 0.4) + rng.normal(0, 0.02, (R, C, 3))
+    got = tube_period(col2, front_half(R, C, 31))
+    assert got is not None and abs(got - 23) < 0.5

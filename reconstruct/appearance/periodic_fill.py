@@ -22,7 +22,13 @@ How, per tube of the layer's (rows, cols) grid, on the reliably seen Gaussians:
 2. **Is it a pattern.** The contrast must be at least ``MIN_CONTRAST`` and ``msd(P / 2)`` at least
    ``MIN_VARIATION``. A solid garment or stripes round it (no change along the row) have no
    contrast; a photo's shading varies slowly along the row (alike nearby, unlike far off), so half
-   a period on is more alike than a period on and the contrast is below 1.
+   a period on is more alike than a period on and the contrast is below 1. And the pattern must
+   have been seen to repeat: seen pairs two periods apart (at least ``MIN_PAIRS``), more alike
+   than half a period apart (``msd(2 P) < msd(P / 2)``). A photo of an open jacket sees the
+   shirt between the flaps as one light band with cloth on either side, over less than two of
+   any period: a shift of nearly the seen width pairs flap with flap (alike) and half of it
+   shirt with flap (unlike), which alone reads as a period of ~23 columns, and carried round it
+   painted the back with shirt-white stripes.
 3. **The continuation.** Each unseen Gaussian of a row takes the colour (interpolated) ``k`` whole
    periods along the row, for the smallest ``k`` (either way round) that lands between two seen
    Gaussians of the same row.
@@ -41,6 +47,10 @@ MIN_CONTRAST = 1.5  # msd(P/2) / msd(P): unlike half a period on, alike a period
 MIN_VARIATION = 0.01  # msd(P/2): an RMS colour difference of 0.1 (summed over RGB) along the row
 MIN_PAIRS = 200  # seen pairs a shift must have to be measured
 STEP = 0.05  # columns: the resolution of the period
+# msd under this is alike (an RMS colour difference of 0.03 summed over RGB, under the noise of
+# trained colours): the contrast of a noise-free pattern is not unbounded at whole multiples of
+# its period, which would hide the fundamental (exact checks: ~60 at the period, 1e29 at three)
+ALIKE = 1e-3
 
 
 def _shifted(colors: np.ndarray, seen: np.ndarray, p: float) -> tuple[np.ndarray, np.ndarray]:
@@ -84,7 +94,7 @@ def tube_period(colors: np.ndarray, seen: np.ndarray) -> float | None:
     for i, P in enumerate(periods):
         a, b = msd(P / 2), msd(P)
         if np.isfinite(a) and np.isfinite(b) and a >= MIN_VARIATION:
-            contrast[i] = a / max(b, 1e-12)
+            contrast[i] = a / max(b, ALIKE)
     if contrast.max() < MIN_CONTRAST:
         return None
     # the fundamental: whole multiples of the period have contrast too (on clean checks more than
@@ -101,7 +111,15 @@ def tube_period(colors: np.ndarray, seen: np.ndarray) -> float | None:
         return float(np.mean(vals)) if vals else float("inf")
 
     candidates = np.arange(0.9 * best, 1.1 * best + STEP / 2, STEP)
-    return float(min(candidates, key=harmonic))
+    period = float(min(candidates, key=harmonic))
+    # seen to repeat: pairs two periods apart were seen, and are more alike than half a period
+    # apart (not only a light band between two alike flanks, seen over less than two periods: an
+    # open jacket's shirt). Not ``MIN_CONTRAST``: the trained checks of the coat scene drift
+    # against the layer's columns, and two periods on they are 1.4 times more alike, not 1.5
+    twice = msd(2 * period)
+    if not np.isfinite(twice) or msd(period / 2) <= twice:
+        return None
+    return period
 
 
 def continue_round(colors: np.ndarray, seen: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
