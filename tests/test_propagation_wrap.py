@@ -346,3 +346,26 @@ def test_part_with_nothing_seen_takes_the_nearest_filled_colours():
     from scipy.spatial import cKDTree
     _, j = cKDTree(pos[seen]).query(pos[neck_back])
     assert np.linalg.norm(col[seen][j] - SKIN, axis=1).mean() < 0.05
+
+
+def test_front_only_part_band_is_the_sides_not_a_speckled_front():
+    # a flat torso (a photo of a man in an open jacket) seen from the front only: a shirt down the
+    # middle of the front, the jacket's green at the sides and all round the back. First hits on a
+    # photo are speckled: a few of the front's Gaussians are unseen, so the shirt lies next to
+    # unseen Gaussians too. The band that continues round the back is the sides next to the unseen
+    # back, and the back is green -- a band read next to any unseen Gaussian took the shirt, the
+    # nearest seen colour to the back's middle of a flat torso
+    th, z = np.meshgrid(np.linspace(-np.pi, np.pi, 96, endpoint=False), np.linspace(1.0, 1.5, 60))
+    th, z = th.ravel(), z.ravel()
+    pos = np.c_[0.16 * np.sin(th), -0.05 * np.cos(th), z]
+    green = np.array([0.1, 0.35, 0.3])
+    shirt = np.abs(pos[:, 0]) < 0.06
+    front = np.abs(np.degrees(th)) <= 80
+    col = np.where((shirt & front)[:, None], WHITE, green)
+    rng = np.random.default_rng(3)
+    seen = front & (rng.random(len(pos)) > 0.1)
+    parts = np.full(len(pos), PART_INDEX["torso"])
+    cfg = WrapFillConfig(front_only_median=0, smooth_sweeps=0)
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    back = np.abs(np.degrees(th)) > 120
+    assert np.abs(out[back] - green).max() < 1e-6

@@ -8,7 +8,10 @@ positions (the body faces -Y, +Z up):
 1. **Boundary band.** The seen Gaussians that lie near the unseen ones -- within ``band`` metres
    (3D) of an unseen Gaussian of the same part -- are the sides the turning body showed: the
    surface that continues round to the unseen side. Their colours are the garment's colours
-   *all round*; the middle of the front (where front-only details sit) is not in the band.
+   *all round*; the middle of the front (where front-only details sit) is not in the band. On a
+   part never seen behind its centre (a photo) the band is read next to its unseen Gaussians
+   behind the centre only: a photo's first hits are speckled, and the middle of its front lies
+   next to unseen Gaussians too.
 2. **Low-frequency fill along the wrap direction.** Each unseen Gaussian takes the median colour
    of the ``k`` nearest band Gaussians of its part that lie at the same height (``|Δz| <=
    slab``), widening the slab where there are too few. Patterns periodic in height (stripes that
@@ -231,8 +234,16 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                     src_pos = pos[tw] * np.array([-1.0, 1.0, 1.0])
         if len(src) < cfg.k:
             continue  # left to the fallback below
-        # 1. the boundary band: seen Gaussians of the part near its unseen ones
-        d_band, _ = cKDTree(pos[todo]).query(src_pos, distance_upper_bound=cfg.band)
+        # 1. the boundary band: seen Gaussians of the part near its unseen ones -- on a part never
+        # seen behind its centre, near its unseen ones behind the centre: the silhouette's sides.
+        # A photo's first hits are speckled, and its front's middle (an open jacket's shirt) lies
+        # next to unseen Gaussians too: on a flat torso the nearest seen colour to the back's middle
+        near = todo
+        if front_only[todo[0]]:
+            behind = todo[pos[todo, 1] > pos[members, 1].mean()]
+            if len(behind) >= cfg.k:
+                near = behind
+        d_band, _ = cKDTree(pos[near]).query(src_pos, distance_upper_bound=cfg.band)
         in_band = np.isfinite(d_band)
         if in_band.sum() < cfg.k:
             in_band = np.ones(len(src), bool)
