@@ -109,17 +109,35 @@ class StudioWindow:
     def xdo(self, *args):
         subprocess.run(["xdotool", *map(str, args)], env=self.env, check=True, timeout=20)
 
+    def frames(self, n: int = 2, timeout: float = 10.0) -> None:
+        """Wait until the window has drawn ``n`` more frames (at most ``timeout`` s). Input reaches
+        the GUI a frame at a time; on a loaded machine (5 frames/s) a frame outlasts the fixed
+        pauses, and a press and its release could land in one frame, or a click on a popup before
+        the popup's frame."""
+        start = self.state().get("frame")
+        if start is None:
+            return
+        t0 = time.time()
+        while time.time() - t0 < timeout:
+            now = self.state().get("frame")
+            if now is not None and now >= start + n:
+                return
+            time.sleep(0.02)
+
     def move(self, x, y):
         self.xdo("mousemove", "--window", self.wid, int(round(x)), int(round(y)))
         time.sleep(self.move_pause)
+        self.frames()
 
     def click(self, name):
         x0, y0, x1, y1 = self.wait_rect(name)
         self.move(0.5 * (x0 + x1), 0.5 * (y0 + y1))
         self.xdo("mousedown", 1)
         time.sleep(0.2)
+        self.frames()
         self.xdo("mouseup", 1)
         time.sleep(0.2)
+        self.frames()
 
     def drag(self, a, b, steps=6):
         """A left-button drag from window point ``a`` to ``b`` in ``steps`` moves."""
@@ -145,11 +163,14 @@ class StudioWindow:
         for m in mods:
             self.xdo("keydown", m)
         time.sleep(0.2)
+        self.frames()
         self.xdo("key", key)
         time.sleep(0.2)
+        self.frames()
         for m in reversed(mods):
             self.xdo("keyup", m)
         time.sleep(0.2)
+        self.frames()
 
     def quit(self, timeout=120) -> None:
         Path(self.out + ".quit").touch()
