@@ -219,9 +219,9 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         todo = members[~seen[members]]
         if len(todo) == 0:
             continue
-        seen_members = members[seen[members]]
-        if (pos[seen_members, 1] > pos[members, 1].mean()).sum() < cfg.k:
-            front_only[todo] = True
+        centre_y = pos[members, 1].mean()
+        never_behind = (pos[members[seen[members]], 1] > centre_y).sum() < cfg.k
+        front_only[todo] = never_behind
         src = members[seen[members]]
         src_pos = pos[src] if len(src) else np.zeros((0, 3))
         if len(src) < cfg.k:  # borrow the left/right twin, mirrored in x
@@ -239,8 +239,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         # A photo's first hits are speckled, and its front's middle (an open jacket's shirt) lies
         # next to unseen Gaussians too: on a flat torso the nearest seen colour to the back's middle
         near = todo
-        if front_only[todo[0]]:
-            behind = todo[pos[todo, 1] > pos[members, 1].mean()]
+        if never_behind:
+            behind = todo[pos[todo, 1] > centre_y]
             if len(behind) >= cfg.k:
                 near = behind
         d_band, _ = cKDTree(pos[near]).query(src_pos, distance_upper_bound=cfg.band)
@@ -257,7 +257,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             band_idx, band_pos, band_col = band_idx[both], band_pos[both], band_col[both]
         covered = None
         if p < len(PART_NAMES) and PART_NAMES[p] in cfg.posterior_band_parts:
-            behind = band_pos[:, 1] > pos[members, 1].mean()
+            behind = band_pos[:, 1] > centre_y
             if behind.sum() >= cfg.k:
                 band_idx, band_pos, band_col = band_idx[behind], band_pos[behind], band_col[behind]
                 skin = face_coloured(src_pos, col[src], pos[members, 0].mean(), contrast=cfg.hair_contrast,
@@ -276,7 +276,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             low[covered] = _same_height_median(pos[todo][covered], src_pos[hair], col[src][hair], cfg)
         # 3. the mirrored colour, kept where the band shows that colour at a nearby height
         query = pos[todo].copy()
-        query[:, 1] = 2 * pos[members, 1].mean() - query[:, 1]
+        query[:, 1] = 2 * centre_y - query[:, 1]
         dist, idx = cKDTree(src_pos).query(query)
         mirrored = col[src][idx]
         keep = dist <= cfg.max_mirror_distance
