@@ -371,6 +371,27 @@ def test_front_only_part_band_is_the_sides_not_a_speckled_front():
     assert np.abs(out[back] - green).max() < 1e-6
 
 
+def test_front_only_part_band_is_the_whole_seen_edge_across_a_gap():
+    # a skirt seen from the front only, its seen region stopping 25 degrees short of the sides on
+    # every row but three near the top, where a sleeve hanging beside it reaches round to the
+    # side plane. The band is the seen edge that faces the unseen back all along it: the back is
+    # the skirt's blue below the sleeve. Read only within 3 cm of the unseen Gaussians behind the
+    # centre, the band was the sleeve alone, and it painted the whole back white
+    th, z = np.meshgrid(np.linspace(-np.pi, np.pi, 96, endpoint=False), np.linspace(0.5, 1.0, 50))
+    th, z = th.ravel(), z.ravel()
+    ad = np.abs(np.degrees(th))
+    pos = np.c_[0.15 * np.sin(th), -0.15 * np.cos(th), z]
+    blue = np.array([0.1, 0.15, 0.45])
+    sleeve = (z > 0.95) & (np.degrees(th) > 60) & (np.degrees(th) < 88)
+    col = np.where(sleeve[:, None], WHITE, blue)
+    seen = (ad <= 65) | sleeve
+    parts = np.full(len(pos), PART_INDEX["torso"])
+    cfg = WrapFillConfig(front_only_median=0, smooth_sweeps=0)
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    back = (ad > 120) & (z < 0.9)
+    assert np.abs(out[back] - blue).max() < 1e-6
+
+
 def test_front_only_head_with_glasses_and_brows_takes_the_hair(monkeypatch):
     # big dark-rimmed glasses and brows: thin dark features over 29 % of the middle of the face,
     # so the face's colour cluster holds under FACE_SHARE of it counting every Gaussian. Only

@@ -9,9 +9,12 @@ positions (the body faces -Y, +Z up):
    (3D) of an unseen Gaussian of the same part -- are the sides the turning body showed: the
    surface that continues round to the unseen side. Their colours are the garment's colours
    *all round*; the middle of the front (where front-only details sit) is not in the band. On a
-   part never seen behind its centre (a photo) the band is read next to its unseen Gaussians
-   behind the centre only: a photo's first hits are speckled, and the middle of its front lies
-   next to unseen Gaussians too.
+   part never seen behind its centre (a photo) the band is read next to the unseen Gaussians
+   joined to those behind the centre (through unseen Gaussians, at the part's spacing) only: a
+   photo's first hits are speckled, and the middle of its front lies next to unseen Gaussians
+   too; and the seen region often stops short of the sides, by an angle that differs from
+   height to height, so the band is the whole seen edge facing the back, not the few places
+   where the seen region reaches within ``band`` of the centre plane.
 2. **Low-frequency fill along the wrap direction.** Each unseen Gaussian takes the median colour
    of the ``k`` nearest band Gaussians of its part that lie at the same height (``|Δz| <=
    slab``), widening the slab where there are too few. Patterns periodic in height (stripes that
@@ -53,6 +56,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..avatar.garment_layer import GARMENT_PART
@@ -149,6 +154,17 @@ def _same_height_median(pos_q: np.ndarray, pos_b: np.ndarray, col_b: np.ndarray,
     return out
 
 
+def _reaching_back(pos_unseen: np.ndarray, behind: np.ndarray, spacing: float) -> np.ndarray:
+    """(len(pos_unseen),) bool: the unseen Gaussians joined to one behind the part's centre
+    (``behind``, bool) through unseen Gaussians no farther apart than 1.5 ``spacing`` -- the
+    unseen side and the strips that lead to it, not the speckles inside a photo's seen front."""
+    pairs = cKDTree(pos_unseen).query_pairs(1.5 * spacing, output_type="ndarray")
+    n = len(pos_unseen)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    return np.isin(label, np.unique(label[behind]))
+
+
 def _joint(col: np.ndarray, z: np.ndarray, cfg: WrapFillConfig) -> np.ndarray:
     """(colour, height scaled so that palette_height maps to palette_tolerance): a box query with
     the max-norm is then "within the tolerance in every channel and within palette_height"."""
@@ -235,14 +251,18 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         if len(src) < cfg.k:
             continue  # left to the fallback below
         # 1. the boundary band: seen Gaussians of the part near its unseen ones -- on a part never
-        # seen behind its centre, near its unseen ones behind the centre: the silhouette's sides.
-        # A photo's first hits are speckled, and its front's middle (an open jacket's shirt) lies
-        # next to unseen Gaussians too: on a flat torso the nearest seen colour to the back's middle
+        # seen behind its centre, near the unseen ones joined to those behind the centre: the
+        # silhouette's sides. A photo's first hits are speckled, and its front's middle (an open
+        # jacket's shirt) lies next to isolated unseen Gaussians too: on a flat torso the nearest
+        # seen colour to the back's middle. Only within ``band`` of the unseen ones behind the
+        # centre, the band was where the seen region happened to reach round that far: on the
+        # long-skirt photo's skirt, 43 Gaussians at its top rows on one side, light blue, which
+        # painted the whole back's top half
         near = todo
-        if never_behind:
-            behind = todo[pos[todo, 1] > centre_y]
-            if len(behind) >= cfg.k:
-                near = behind
+        behind = pos[todo, 1] > centre_y
+        if never_behind and behind.sum() >= cfg.k:
+            spacing = np.median(cKDTree(pos[members]).query(pos[members], k=2)[0][:, 1])
+            near = todo[_reaching_back(pos[todo], behind, spacing)]
         d_band, _ = cKDTree(pos[near]).query(src_pos, distance_upper_bound=cfg.band)
         in_band = np.isfinite(d_band)
         if in_band.sum() < cfg.k:
