@@ -228,6 +228,23 @@ def test_front_only_head_back_and_crown_take_the_hair():
     assert np.linalg.norm(off[low_back] - SKIN, axis=1).mean() < 0.05
 
 
+def test_front_only_head_band_is_behind_the_centre_not_the_face_sides():
+    # a bent head (the sweater photo): at face height the seen region stops at the cheeks, 35
+    # degrees short of the sides, while the hair is seen round to the sides above. The unseen
+    # strips beside the face are joined to the back of the head, but the head's band is read next
+    # to its unseen Gaussians behind the centre only: the back takes the hair, not the cheeks' skin.
+    # The hair rule stands down (as on that photo), so this is the band's doing
+    pos, th, _, truth = front_only_head()
+    deg = np.abs(np.degrees(th))
+    seen = np.where(pos[:, 2] < 1.70, deg <= 55, deg <= 80)
+    parts = np.full(len(pos), PART_INDEX["head"])
+    col = np.where(seen[:, None], truth, 0.5)
+    cfg = WrapFillConfig(smooth_sweeps=0, front_only_median=0, hair_min_share=1.1)
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    back = ~seen & (deg > 100)
+    assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
+
+
 def test_front_only_head_hat_over_hair_keeps_its_heights():
     pos, th, seen, truth = front_only_head()
     hat = pos[:, 2] > 1.74
@@ -390,6 +407,67 @@ def test_front_only_part_band_is_the_whole_seen_edge_across_a_gap():
     out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
     back = (ad > 120) & (z < 0.9)
     assert np.abs(out[back] - blue).max() < 1e-6
+
+
+def _torso_and_neck(front_deg: float):
+    """A torso (a tube, 0.17 x 0.10 m, 1.0-1.5 m high, with a closed top over the shoulders) and a
+    neck above it; the torso seen from the front only, to ``front_deg`` either side, the top and
+    the neck unseen (the shoulders' tops are seen at grazing incidence)."""
+    th, z = np.meshgrid(np.linspace(-np.pi, np.pi, 96, endpoint=False), np.linspace(1.0, 1.5, 51))
+    th, z = th.ravel(), z.ravel()
+    tube = np.c_[0.17 * np.sin(th), -0.10 * np.cos(th), z]
+    gx, gy = np.meshgrid(np.linspace(-0.17, 0.17, 35), np.linspace(-0.10, 0.10, 21))
+    inside = (gx / 0.17) ** 2 + (gy / 0.10) ** 2 < 0.9
+    top = np.c_[gx[inside], gy[inside], np.full(inside.sum(), 1.5)]
+    nth, nz = np.meshgrid(np.linspace(-np.pi, np.pi, 32, endpoint=False), np.linspace(1.51, 1.6, 10))
+    neck = np.c_[0.05 * np.sin(nth.ravel()), -0.05 * np.cos(nth.ravel()), nz.ravel()]
+    pos = np.r_[tube, top, neck]
+    parts = np.r_[np.full(len(tube) + len(top), PART_INDEX["torso"]), np.full(len(neck), PART_INDEX["neck"])]
+    seen = np.r_[np.abs(np.degrees(th)) <= front_deg, np.zeros(len(top) + len(neck), bool)]
+    return pos, parts, seen, len(tube)
+
+
+def test_front_only_torso_band_leaves_out_the_neckline():
+    # a dress with a wide neckline seen from the front only: the front's top rows are skin. The
+    # band runs over the torso's top too, and carried round at its height the neckline's skin
+    # painted the upper back (the red-dress photo). Within neckline_reach of the neck the band is
+    # left out, and the upper back takes the dress's red of the sides below
+    pos, parts, seen, n_tube = _torso_and_neck(70)
+    col = np.tile(RED, (len(pos), 1))
+    col[:n_tube][pos[:n_tube, 2] > 1.42] = SKIN
+    cfg = WrapFillConfig(front_only_median=0, smooth_sweeps=0)
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    upper_back = np.zeros(len(pos), bool)
+    upper_back[:n_tube] = (pos[:n_tube, 1] > 0.05) & (pos[:n_tube, 2] > 1.42)
+    assert np.abs(out[upper_back] - RED).max() < 1e-6
+    old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(front_only_median=0, smooth_sweeps=0,
+                                                                         neckline_parts=())).numpy()
+    assert np.abs(old[upper_back] - SKIN).max(1).mean() < 0.05  # the case is real
+
+
+def test_front_only_torso_with_only_a_neckline_band_takes_its_neighbours():
+    # an open jacket's torso, a photo: the jacket (its own layer and sleeves) hides the torso but
+    # for the shirt between its lapels, next to the neck. All of the torso's band lies within
+    # neckline_reach of the neck; the torso is left to the fallback, and its back takes the
+    # nearest colours of its neighbours (the sleeves), not the shirt's white
+    green = np.array([0.1, 0.35, 0.3])
+    pos, parts, seen, n_tube = _torso_and_neck(60)
+    col = np.tile(WHITE, (len(pos), 1))
+    seen[:n_tube] &= pos[:n_tube, 2] > 1.42
+    th, r = np.meshgrid(np.linspace(-np.pi, np.pi, 24, endpoint=False), np.linspace(1.42, 1.5, 5))
+    sleeves = [np.c_[sx * (0.2 + np.zeros(th.size)), 0.04 * np.cos(th.ravel()), r.ravel()] for sx in (-1, 1)]
+    pos = np.r_[pos, sleeves[0], sleeves[1]]
+    parts = np.r_[parts, np.full(th.size, PART_INDEX["upperarm.R"]), np.full(th.size, PART_INDEX["upperarm.L"])]
+    col = np.r_[col, np.tile(green, (2 * th.size, 1))]
+    seen = np.r_[seen, np.ones(2 * th.size, bool)]
+    cfg = WrapFillConfig(front_only_median=0, smooth_sweeps=0)
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    upper_back = np.zeros(len(pos), bool)
+    upper_back[:n_tube] = (pos[:n_tube, 1] > 0.05) & (pos[:n_tube, 2] > 1.42)
+    assert np.abs(out[upper_back] - green).max() < 1e-6
+    old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(front_only_median=0, smooth_sweeps=0,
+                                                                         neckline_parts=())).numpy()
+    assert np.abs(old[upper_back] - WHITE).max(1).mean() < 0.05  # the case is real
 
 
 def test_front_only_head_with_glasses_and_brows_takes_the_hair(monkeypatch):

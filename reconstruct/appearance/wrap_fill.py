@@ -14,7 +14,11 @@ positions (the body faces -Y, +Z up):
    photo's first hits are speckled, and the middle of its front lies next to unseen Gaussians
    too; and the seen region often stops short of the sides, by an angle that differs from
    height to height, so the band is the whole seen edge facing the back, not the few places
-   where the seen region reaches within ``band`` of the centre plane.
+   where the seen region reaches within ``band`` of the centre plane. (The head's band stays
+   next to its unseen Gaussians behind the centre: the face's sides are not its back.) A torso's
+   band there leaves out the seen edge within ``neckline_reach`` of the neck -- over the
+   shoulders it runs along the neckline, the front's own -- and a torso whose band is all
+   neckline takes the nearest colours of the other parts.
 2. **Low-frequency fill along the wrap direction.** Each unseen Gaussian takes the median colour
    of the ``k`` nearest band Gaussians of its part that lie at the same height (``|Δz| <=
    slab``), widening the slab where there are too few. Patterns periodic in height (stripes that
@@ -113,6 +117,13 @@ class WrapFillConfig:
     # ``hair_min_share`` of the seen head
     hair_contrast: float = 0.15
     hair_min_share: float = 0.1
+    # parts whose band, when never seen behind their centre, leaves out the seen edge within
+    # ``neckline_reach`` metres of the neck: over the top of a torso it runs along the neckline (a
+    # V-neck's skin, a shirt between an open jacket's lapels), the front's own, and carried round
+    # at its height it painted the red-dress photo's upper back with a skin-coloured patch. A back
+    # closes higher than a front: the upper back takes the band of the sides below it
+    neckline_parts: tuple[str, ...] = ("torso",)
+    neckline_reach: float = 0.15
 
 
 def grazing_rule_for(stage1_settings) -> bool:
@@ -156,8 +167,9 @@ def _same_height_median(pos_q: np.ndarray, pos_b: np.ndarray, col_b: np.ndarray,
 
 def _reaching_back(pos_unseen: np.ndarray, behind: np.ndarray, spacing: float) -> np.ndarray:
     """(len(pos_unseen),) bool: the unseen Gaussians joined to one behind the part's centre
-    (``behind``, bool) through unseen Gaussians no farther apart than 1.5 ``spacing`` -- the
-    unseen side and the strips that lead to it, not the speckles inside a photo's seen front."""
+    (``behind``, bool) through unseen Gaussians no farther apart than 1.5 ``spacing`` (diagonal
+    neighbours on a grid of that spacing) -- the unseen side and the strips that lead to it, not
+    the speckles inside a photo's seen front."""
     pairs = cKDTree(pos_unseen).query_pairs(1.5 * spacing, output_type="ndarray")
     n = len(pos_unseen)
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
@@ -230,6 +242,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     filled = np.zeros(len(pos), bool)
     front_only = np.zeros(len(pos), bool)  # unseen Gaussians of parts never seen behind their centre
     periodic = np.zeros(len(pos), bool)  # unseen Gaussians a repeating pattern was carried onto
+    neckline_only: list[int] = []  # parts whose band was all neckline: filled from their neighbours
     for p in np.unique(parts):
         members = np.flatnonzero(parts == p)
         todo = members[~seen[members]]
@@ -258,11 +271,20 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         # centre, the band was where the seen region happened to reach round that far: on the
         # long-skirt photo's skirt, 43 Gaussians at its top rows on one side, light blue, which
         # painted the whole back's top half
+        # (The head's band is the seen surface behind its centre, step 3: next to its unseen
+        # Gaussians behind the centre, not the face's sides, which on the sweater photo's bent head
+        # carried the cheek's skin round the back of the head.)
         near = todo
         behind = pos[todo, 1] > centre_y
+        posterior = p < len(PART_NAMES) and PART_NAMES[p] in cfg.posterior_band_parts
         if never_behind and behind.sum() >= cfg.k:
-            spacing = np.median(cKDTree(pos[members]).query(pos[members], k=2)[0][:, 1])
-            near = todo[_reaching_back(pos[todo], behind, spacing)]
+            if posterior:
+                near = todo[behind]
+            else:
+                # the spacing across both directions of the surface: on a grid the 4th nearest
+                # neighbour is the farther of the row and column neighbours
+                spacing = np.median(cKDTree(pos[members]).query(pos[members], k=5)[0][:, 4])
+                near = todo[_reaching_back(pos[todo], behind, spacing)]
         d_band, _ = cKDTree(pos[near]).query(src_pos, distance_upper_bound=cfg.band)
         in_band = np.isfinite(d_band)
         if in_band.sum() < cfg.k:
@@ -275,8 +297,17 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         both = _on_both_sides(band_pos, band_col, pos[members, 0].mean(), cfg)
         if both.sum() >= cfg.k:
             band_idx, band_pos, band_col = band_idx[both], band_pos[both], band_col[both]
+        if never_behind and p < len(PART_NAMES) and PART_NAMES[p] in cfg.neckline_parts:
+            neck = parts == PART_INDEX["neck"]
+            if neck.any():
+                d_neck, _ = cKDTree(pos[neck]).query(band_pos)
+                far = d_neck > cfg.neckline_reach
+                if far.sum() < cfg.k:
+                    neckline_only.append(p)
+                    continue  # left to the fallback below: the neighbouring parts' colours
+                band_idx, band_pos, band_col = band_idx[far], band_pos[far], band_col[far]
         covered = None
-        if p < len(PART_NAMES) and PART_NAMES[p] in cfg.posterior_band_parts:
+        if posterior:
             behind = band_pos[:, 1] > centre_y
             if behind.sum() >= cfg.k:
                 band_idx, band_pos, band_col = band_idx[behind], band_pos[behind], band_col[behind]
@@ -320,6 +351,16 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                 done &= ~no_mirror[members]
             out[members[done]] = cont[done]
             periodic[members[done]] = True
+    # a part whose band was all neckline takes the nearest colours of the other parts, not its own
+    # seen front (the shirt between an open jacket's lapels); before the fallback below, so that
+    # the parts left to it (a neck hidden by a collar) find it filled
+    for p in neckline_only:
+        own = np.flatnonzero((parts == p) & ~seen)
+        other = np.flatnonzero((seen | filled) & (parts != p))
+        if len(own) and len(other):
+            _, idx = cKDTree(pos[other]).query(pos[own])
+            out[own] = out[other[idx]]
+            filled[own] = True
     rest = np.flatnonzero(~seen & ~filled)
     if len(rest):
         # the nearest seen or already filled Gaussian of any part: the back of a neck a photo's
