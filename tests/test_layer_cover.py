@@ -50,9 +50,14 @@ def _reference(body, parts, lpos, lnrm, rc, op, covered, margin):
             continue
         j = int(np.argmin(((lpos - p) ** 2).sum(1)))
         row, col = rc[j]
+        if np.dot(p - lpos[j], lnrm[j]) >= 0:
+            continue
+        if row == 0 and p[2] < lpos[j, 2]:  # below the top row's height: the row under it hides it
+            j = int(np.flatnonzero((rc[:, 0] == 1) & (rc[:, 1] == col))[0])
+            row = 1
         if hem[col] is None or row == 0 or row > hem[col][0]:
             continue
-        if np.dot(p - lpos[j], lnrm[j]) >= 0 or p[2] < hem[col][1] + margin:
+        if p[2] < hem[col][1] + margin:
             continue
         out[i] = j
     return out
@@ -80,6 +85,10 @@ def test_hidden_body_matches_brute_force():
     short = (np.mod(th, 2 * np.pi) < 2 * np.pi * 5.5 / C) & (body[:, 2] < -0.2) & (rad < 0.19)
     assert short.any() and not hidden[short & np.isin(parts, list(covered))].any()  # under the shorter hem
     assert hidden[(body[:, 2] < -0.3) & (rad < 0.19)].any()  # the longer hem hides lower
+    # nearest to the top row: hidden (by row 1) below its height, not above it
+    top_nearest = rc[((lpos[None] - body[:, None]) ** 2).sum(2).argmin(1), 0] == 0
+    assert (hidden & top_nearest).sum() > 10 and (rc[got[hidden & top_nearest], 0] == 1).all()
+    assert not hidden[top_nearest & (body[:, 2] > 0)].any()
 
 
 def test_no_layer_hides_nothing():

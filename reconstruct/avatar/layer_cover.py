@@ -12,7 +12,10 @@ them, what shows through is the cloth.
 Which. A body Gaussian of the parts a layer covers (``layer_clearance.COVERED_PARTS``) whose nearest
 layer Gaussian in canonical space (base positions) faces it from outside (the body point is behind
 the layer point along the layer's outward normal) and lies in its column's opaque run: below the
-layer's top row (which may fade into the body) and no lower than the column's hem, the lowest row
+layer's top row (which may fade into the body; a body point nearest to the top row but below its
+height is hidden by the row under it -- on the long-skirt photo, torso Gaussians between the top
+two rows kept the blouse's colour and showed through the fading top as white blotches on the
+skirt's back) and no lower than the column's hem, the lowest row
 of the run of rows with opacity at least ``min_opacity`` that starts under the top row. The body
 point must also be ``hem_margin`` above that hem: a hem is curved and its height differs from
 column to column, and on the coat photo a strip of the shin under the back hem, whose nearest
@@ -56,7 +59,14 @@ def body_under_layer(body_positions: np.ndarray, body_parts: np.ndarray, layer_p
     j = np.asarray(j, np.int64)
     inside = ((body_positions[ids] - layer_positions[j]) * np.asarray(layer_normals, np.float64)[j]).sum(1) < 0
     row, col = rc[j, 0], rc[j, 1]
-    hidden = (inside & (row > 0) & (row <= depth[col])
+    # nearest to the top row but below its height: under the cloth, hidden by the row below
+    index = np.full((R, C), -1, np.int64)
+    index[rc[:, 0], rc[:, 1]] = np.arange(len(rc))
+    if R > 1:
+        below_top = (row == 0) & (body_positions[ids, 2] < z[0, col])
+        j = np.where(below_top, index[1, col], j)
+        row = np.where(below_top, 1, row)
+    hidden = (inside & (row > 0) & (j >= 0) & (row <= depth[col])
               & (body_positions[ids, 2] >= hem_z[col] + hem_margin))
     out[ids[hidden]] = j[hidden]
     return out
