@@ -283,7 +283,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             else:
                 # the spacing across both directions of the surface: on a grid the 4th nearest
                 # neighbour is the farther of the row and column neighbours
-                spacing = np.median(cKDTree(pos[members]).query(pos[members], k=5)[0][:, 4])
+                kn = min(5, len(members))
+                spacing = np.median(cKDTree(pos[members]).query(pos[members], k=kn)[0][:, kn - 1])
                 near = todo[_reaching_back(pos[todo], behind, spacing)]
         d_band, _ = cKDTree(pos[near]).query(src_pos, distance_upper_bound=cfg.band)
         in_band = np.isfinite(d_band)
