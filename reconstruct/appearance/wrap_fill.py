@@ -298,7 +298,10 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         both = _on_both_sides(band_pos, band_col, pos[members, 0].mean(), cfg)
         if both.sum() >= cfg.k:
             band_idx, band_pos, band_col = band_idx[both], band_pos[both], band_col[both]
-        if never_behind and p < len(PART_NAMES) and PART_NAMES[p] in cfg.neckline_parts:
+        # (only with a band of at least 4 k Gaussians: on a coarse model, 17 band Gaussians on the
+        # whole torso, 7 of them near the neck, the neckline is not resolved from the sides)
+        if (never_behind and p < len(PART_NAMES) and PART_NAMES[p] in cfg.neckline_parts
+                and len(band_pos) >= 4 * cfg.k):
             neck = parts == PART_INDEX["neck"]
             if neck.any():
                 d_neck, _ = cKDTree(pos[neck]).query(band_pos)
