@@ -427,6 +427,16 @@ def _torso_and_neck(front_deg: float):
     return pos, parts, seen, len(tube)
 
 
+def _upper_back_with_and_without_the_rule(pos, parts, seen, col, n_tube):
+    """The filled colours of the torso's upper back (behind, above 1.42 m) with the neckline rule
+    and without it (``neckline_parts=()``); no smoothing of either kind."""
+    upper_back = np.zeros(len(pos), bool)
+    upper_back[:n_tube] = (pos[:n_tube, 1] > 0.05) & (pos[:n_tube, 2] > 1.42)
+    return tuple(wrap_fill_colors(pos, parts, seen, col, None,
+                                  WrapFillConfig(front_only_median=0, smooth_sweeps=0, **kw)).numpy()[upper_back]
+                 for kw in ({}, {"neckline_parts": ()}))
+
+
 def test_front_only_torso_band_leaves_out_the_neckline():
     # a dress with a wide neckline seen from the front only: the front's top rows are skin. The
     # band runs over the torso's top too, and carried round at its height the neckline's skin
@@ -435,14 +445,9 @@ def test_front_only_torso_band_leaves_out_the_neckline():
     pos, parts, seen, n_tube = _torso_and_neck(70)
     col = np.tile(RED, (len(pos), 1))
     col[:n_tube][pos[:n_tube, 2] > 1.42] = SKIN
-    cfg = WrapFillConfig(front_only_median=0, smooth_sweeps=0)
-    out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
-    upper_back = np.zeros(len(pos), bool)
-    upper_back[:n_tube] = (pos[:n_tube, 1] > 0.05) & (pos[:n_tube, 2] > 1.42)
-    assert np.abs(out[upper_back] - RED).max() < 1e-6
-    old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(front_only_median=0, smooth_sweeps=0,
-                                                                         neckline_parts=())).numpy()
-    assert np.abs(old[upper_back] - SKIN).max(1).mean() < 0.05  # the case is real
+    out, old = _upper_back_with_and_without_the_rule(pos, parts, seen, col, n_tube)
+    assert np.abs(out - RED).max() < 1e-6
+    assert np.abs(old - SKIN).max(1).mean() < 0.05  # the case is real
 
 
 def test_front_only_torso_with_only_a_neckline_band_takes_its_neighbours():
@@ -460,14 +465,9 @@ def test_front_only_torso_with_only_a_neckline_band_takes_its_neighbours():
     parts = np.r_[parts, np.full(th.size, PART_INDEX["upperarm.R"]), np.full(th.size, PART_INDEX["upperarm.L"])]
     col = np.r_[col, np.tile(green, (2 * th.size, 1))]
     seen = np.r_[seen, np.ones(2 * th.size, bool)]
-    cfg = WrapFillConfig(front_only_median=0, smooth_sweeps=0)
-    out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
-    upper_back = np.zeros(len(pos), bool)
-    upper_back[:n_tube] = (pos[:n_tube, 1] > 0.05) & (pos[:n_tube, 2] > 1.42)
-    assert np.abs(out[upper_back] - green).max() < 1e-6
-    old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(front_only_median=0, smooth_sweeps=0,
-                                                                         neckline_parts=())).numpy()
-    assert np.abs(old[upper_back] - WHITE).max(1).mean() < 0.05  # the case is real
+    out, old = _upper_back_with_and_without_the_rule(pos, parts, seen, col, n_tube)
+    assert np.abs(out - green).max() < 1e-6
+    assert np.abs(old - WHITE).max(1).mean() < 0.05  # the case is real
 
 
 def test_front_only_head_with_glasses_and_brows_takes_the_hair(monkeypatch):

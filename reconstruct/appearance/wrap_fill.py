@@ -248,13 +248,13 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         todo = members[~seen[members]]
         if len(todo) == 0:
             continue
+        name = PART_NAMES[p] if p < len(PART_NAMES) else ""  # "" for a garment layer
         centre_y = pos[members, 1].mean()
-        never_behind = (pos[members[seen[members]], 1] > centre_y).sum() < cfg.k
-        front_only[todo] = never_behind
         src = members[seen[members]]
+        never_behind = (pos[src, 1] > centre_y).sum() < cfg.k
+        front_only[todo] = never_behind
         src_pos = pos[src] if len(src) else np.zeros((0, 3))
         if len(src) < cfg.k:  # borrow the left/right twin, mirrored in x
-            name = PART_NAMES[p] if p < len(PART_NAMES) else ""
             twin = PART_INDEX.get(MIRROR.get(name, ""), -1)
             if twin >= 0 and twin != p:
                 tw = np.flatnonzero((parts == twin) & seen)
@@ -264,19 +264,16 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         if len(src) < cfg.k:
             continue  # left to the fallback below
         # 1. the boundary band: seen Gaussians of the part near its unseen ones -- on a part never
-        # seen behind its centre, near the unseen ones joined to those behind the centre: the
-        # silhouette's sides. A photo's first hits are speckled, and its front's middle (an open
-        # jacket's shirt) lies next to isolated unseen Gaussians too: on a flat torso the nearest
-        # seen colour to the back's middle. Only within ``band`` of the unseen ones behind the
-        # centre, the band was where the seen region happened to reach round that far: on the
-        # long-skirt photo's skirt, 43 Gaussians at its top rows on one side, light blue, which
-        # painted the whole back's top half
-        # (The head's band is the seen surface behind its centre, step 3: next to its unseen
-        # Gaussians behind the centre, not the face's sides, which on the sweater photo's bent head
-        # carried the cheek's skin round the back of the head.)
+        # seen behind its centre, near the unseen ones joined to those behind the centre (module
+        # docstring, step 1). Not near isolated unseen ones: a photo's speckled front (an open
+        # jacket's shirt) is the nearest seen colour to a flat torso's back. Not only near those
+        # behind the centre: the long-skirt photo's band was then 43 Gaussians at the skirt's top
+        # on one side, and painted the upper half of its back. The head keeps the unseen ones
+        # behind its centre: the face's sides are not its back (the sweater photo's bent head
+        # took the cheek's skin round)
         near = todo
         behind = pos[todo, 1] > centre_y
-        posterior = p < len(PART_NAMES) and PART_NAMES[p] in cfg.posterior_band_parts
+        posterior = name in cfg.posterior_band_parts
         if never_behind and behind.sum() >= cfg.k:
             if posterior:
                 near = todo[behind]
@@ -298,10 +295,10 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         both = _on_both_sides(band_pos, band_col, pos[members, 0].mean(), cfg)
         if both.sum() >= cfg.k:
             band_idx, band_pos, band_col = band_idx[both], band_pos[both], band_col[both]
-        # (only with a band of at least 4 k Gaussians: on a coarse model, 17 band Gaussians on the
-        # whole torso, 7 of them near the neck, the neckline is not resolved from the sides)
-        if (never_behind and p < len(PART_NAMES) and PART_NAMES[p] in cfg.neckline_parts
-                and len(band_pos) >= 4 * cfg.k):
+        # the neckline left out of a torso's band (``neckline_parts``); only with a band of at least
+        # 4 k Gaussians: on a coarse model (17 band Gaussians on the whole torso, 7 of them near
+        # the neck) the neckline is not resolved from the sides
+        if never_behind and name in cfg.neckline_parts and len(band_pos) >= 4 * cfg.k:
             neck = parts == PART_INDEX["neck"]
             if neck.any():
                 d_neck, _ = cKDTree(pos[neck]).query(band_pos)
@@ -335,7 +332,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         dist, idx = cKDTree(src_pos).query(query)
         mirrored = col[src][idx]
         keep = dist <= cfg.max_mirror_distance
-        if p < len(PART_NAMES) and PART_NAMES[p] in cfg.no_mirror_parts:
+        if name in cfg.no_mirror_parts:
             keep[:] = False
         if no_mirror is not None:
             keep &= ~no_mirror[todo]

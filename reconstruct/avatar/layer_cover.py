@@ -13,12 +13,13 @@ Which. A body Gaussian of the parts a layer covers (``layer_clearance.COVERED_PA
 layer Gaussian in canonical space (base positions) faces it from outside (the body point is behind
 the layer point along the layer's outward normal) and lies in its column's opaque run: below the
 layer's top row (which may fade into the body; a body point nearest to the top row but below its
-height is hidden by the row under it -- on the long-skirt photo, torso Gaussians just below the
-top row kept the blouse's colour and showed through the fading top as light blotches on the
-skirt's back) and no lower than the column's hem, the lowest row of the run of rows with opacity at least ``min_opacity`` that starts under the top row. The body
-point must also be ``hem_margin`` above that hem: a hem is curved and its height differs from
-column to column, and on the coat photo a strip of the shin under the back hem, whose nearest
-layer Gaussians were the front's lower ones, came out in the coat's colour without the margin.
+height is hidden by the row under it -- on the long-skirt photo, torso Gaussians just below the top
+row kept the blouse's colour and showed through the fading top as light blotches on the skirt's
+back) and no lower than the column's hem, the lowest row of the run of rows with opacity at least
+``min_opacity`` that starts under the top row. The body point must also be ``hem_margin`` above that
+hem: a hem is curved and its height differs from column to column, and on the coat photo a strip of
+the shin under the back hem, whose nearest layer Gaussians were the front's lower ones, came out in
+the coat's colour without the margin.
 Body Gaussians above the layer's top or below its hem are not hidden.
 """
 
