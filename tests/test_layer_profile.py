@@ -166,7 +166,8 @@ def test_trousers_get_no_profile(body, hint):
 
 
 def test_a_flaps_stretch_keeps_its_weights(body):
-    flap = VolumeHint(top_z=torso_top_height(body), hem_z=0.0, standoff_top=0.012, standoff_hem=0.012, side_right=0.2)
+    flap = VolumeHint(top_z=torso_top_height(body), hem_z=0.0, standoff_top=0.012, standoff_hem=0.012,
+                      side_right=0.2)
     assert torch.equal(build_garment_layer(body, flap).weights, build_garment_layer(body, flap, stretch_blend=1e9).weights)
     profiled = replace(flap, side_profile=((0.2, 0.0, 0.2), (0.0, 0.0, 0.2)))
     assert not torch.allclose(build_garment_layer(body, profiled).weights,

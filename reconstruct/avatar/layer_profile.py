@@ -20,13 +20,14 @@ the synthetic benchmark's symmetric garments read under 1 cm and keep their laye
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from dataclasses import replace
-
 from ..body.base import BodyModel
-from .garment_layer import GARMENT_LAYER_STEP, GarmentLayer, VolumeHint, _run_around, body_silhouette, build_garment_layer
+from .garment_layer import (GARMENT_LAYER_STEP, GarmentLayer, VolumeHint, _run_around, body_silhouette,
+                            build_garment_layer)
 
 # metres a side must reach past the rings somewhere to be stretched: smaller gaps are left to the
 # Gaussians' learned offsets (stretched by 3-7 cm, the green-coat and green-jacket photos fitted
@@ -53,7 +54,7 @@ def frame_side_reach(body: BodyModel, layer: GarmentLayer, frame, silhouette: np
     towards_left = 1.0 if hips_x[0] >= hips_x[1] else -1.0  # image x direction of the body's +X
     mask = np.asarray(frame.mask) > 0.5
     sil = body_silhouette(body, frame) if silhouette is None else silhouette
-    H, W = mask.shape
+    H = mask.shape[0]
     out = np.full((R, 2), np.nan)
     for r in range(R):
         if not (np.isfinite(uv[r]).all() and (depth[r] > 0).all()):
@@ -90,8 +91,8 @@ def fit_side_profile(body: BodyModel, hint: VolumeHint, frames, *, row_step: flo
     ``iterations`` times: a stretch in the body's x moves the ring's edge in the image by more or
     less than itself when the body is turned from the camera. A row whose step moved its edge by
     less than ``min_gain`` of itself (a ring crumpled by crossed legs, whose outermost point
-    belongs to the other leg) keeps the profile it had before and is not changed again. Reaches are clipped to ``max_reach``; a side that stays under
-    ``min_reach`` is 0."""
+    belongs to the other leg) keeps the profile it had before and is not changed again. Reaches
+    are clipped to ``max_reach``; a side that stays under ``min_reach`` is 0."""
     if hint.two_legs or not len(frames):
         return hint
     picks = sorted(set(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int).tolist()))
