@@ -591,6 +591,44 @@ def test_untrained_layer_opacity_has_no_ring_below_the_hem(layered):
         with torch.no_grad():
             m.layer_opacity.copy_(saved_op)
 
+def test_a_low_row_above_the_hem_is_cloth_behind_a_hand(layered):
+    """A row below one half between opaque rows (its front under a hand) is not the hem: the
+    untrained Gaussians there take the lower of the most opaque rows above and below it, and the
+    rows under it keep theirs down to the real hem (whose rows 3 cm down are all below one half)."""
+    from reconstruct.train.unseen_fill import fill_unseen_layer_opacity
+
+    t = layered
+    m, state = t.model, t.state
+    N = m.num_body
+    R, C = m.layer.grid_shape
+    hem = R // 2
+    dip = (2 + hem) // 2
+    assert 2 < dip < hem
+    rows = m.layer_rc[:, 0]
+    cols = m.layer_rc[:, 1]
+    saved_seen, saved_op = state.seen.clone(), m.layer_opacity.detach().clone()
+    profile = torch.full((R,), 0.9)
+    profile[2] = 0.99
+    profile[dip] = 0.3
+    profile[hem:] = 0.05
+    try:
+        with torch.no_grad():
+            m.layer_opacity.copy_(torch.logit(profile[rows]) / m.config.garment_opacity_gain)
+        trained = cols < C // 2
+        state.seen[:] = False
+        fill_unseen_layer_opacity(state, trained, erosion=0)
+        got = m.opacities().detach()[N:]
+        per_row = torch.stack([got[(rows == r) & ~trained].mean() for r in range(R)])
+        want = profile.clone()
+        want[dip] = 0.9  # min(0.99 above, 0.9 below)
+        want[hem:] = 1e-3
+        assert torch.allclose(per_row, want, atol=1e-4), (per_row, want)
+    finally:
+        state.seen.copy_(saved_seen)
+        with torch.no_grad():
+            m.layer_opacity.copy_(saved_op)
+
+
 def test_layer_faced_training_is_the_front_of_the_tube_for_a_front_camera(layered):
     """Against an independent reference: the cosine between each posed layer normal and the
     direction to the camera, in float64, over every training frame."""
