@@ -160,9 +160,13 @@ def test_side_reach_interpolates_the_knots_and_is_zero_outside(hint):
         replace(hint, side_profile=((0.0, 0.1),))
 
 
-def test_trousers_get_no_profile(body, hint):
+def test_trousers_get_no_profile(scene, body, hint):
+    # even with a mask that reaches far past the layer: two tubes are not stretched
+    plain = build_garment_layer(body, hint)
+    frame, _ = _swung(scene.frames[0], body, plain, 0.15, (0.35, 0.85))
     legs = replace(hint, two_legs=True)
-    assert fit_side_profile(body, legs, []) is legs
+    assert fit_side_profile(body, legs, [frame]) is legs
+    assert fit_side_profile(body, hint, [frame]) != hint  # the same frame stretches one tube
 
 
 def test_a_flaps_stretch_keeps_its_weights(body):
