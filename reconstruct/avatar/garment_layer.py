@@ -432,9 +432,9 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None =
         for side, flap, sgn in zip(hint.side_reach(zs), (hint.side_left, hint.side_right), (1.0, -1.0)):
             if (side > 0).any():
                 rel = (xy[..., 0] - centres[:, None, 0]) * sgn  # (R,C) metres towards that side
-                share = np.where(rel > 0, rel / np.maximum(rel.max(1, keepdims=True), 1e-3), 0.0)
-                moved += share * (side - flap)[:, None]
-                xy[..., 0] += share * side[:, None] * sgn
+                frac = np.where(rel > 0, rel / np.maximum(rel.max(1, keepdims=True), 1e-3), 0.0)
+                moved += frac * (side - flap)[:, None]
+                xy[..., 0] += frac * side[:, None] * sgn
         stretch.append(moved)
         grids.append(np.concatenate([xy, np.broadcast_to(zs[:, None, None], (rows, cols, 1))], -1))
     P = np.concatenate(grids, axis=1)  # (rows, tubes*cols, 3)
@@ -807,20 +807,27 @@ def frame_flap_evidence(body: BodyModel, frame, *, rows_per_metre: float = 100.0
     return FlapEvidence(True, found.get("L"), found.get("R"))
 
 
-def scene_hint_evidence(body: BodyModel, frames, *, max_frames: int = 8, **thresholds) -> list[HintEvidence]:
+def spread_frames(frames, max_frames: int = 8) -> list:
+    """Up to ``max_frames`` of ``frames`` spread evenly over the sequence (first and last included),
+    in order: the frames the layer's evidence is read from."""
+    picks = np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)
+    return [frames[i] for i in sorted(set(picks.tolist()))]
+
+
+def scene_hint_evidence(body: BodyModel, frames, *, max_frames: int = 8, silhouettes: list | None = None,
+                        **thresholds) -> list[HintEvidence]:
     """``frame_hint_evidence`` (with its ``thresholds``), with ``frame_leg_evidence`` as its
     ``legs``, ``frame_torso_evidence`` as its ``torso`` and ``frame_flap_evidence`` as its
-    ``flaps``, for up to ``max_frames`` frames spread
-    evenly over the sequence."""
-    picks = np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int)
-    out = []
-    for i in sorted(set(picks.tolist())):
-        sil = body_silhouette(body, frames[i])
-        out.append(replace(frame_hint_evidence(body, frames[i], silhouette=sil, **thresholds),
-                           legs=frame_leg_evidence(body, frames[i], silhouette=sil),
-                           torso=frame_torso_evidence(body, frames[i], silhouette=sil),
-                           flaps=frame_flap_evidence(body, frames[i], silhouette=sil)))
-    return out
+    ``flaps``, for the frames ``spread_frames`` picks. ``silhouettes``: the posed body's own in
+    those frames (``body_silhouette``), when the caller has them."""
+    picked = spread_frames(frames, max_frames)
+    if silhouettes is None:
+        silhouettes = [body_silhouette(body, f) for f in picked]
+    return [replace(frame_hint_evidence(body, f, silhouette=sil, **thresholds),
+                    legs=frame_leg_evidence(body, f, silhouette=sil),
+                    torso=frame_torso_evidence(body, f, silhouette=sil),
+                    flaps=frame_flap_evidence(body, f, silhouette=sil))
+            for f, sil in zip(picked, silhouettes, strict=True)]
 
 
 def torso_standoff(evidence: list[HintEvidence]) -> float | None:
@@ -886,11 +893,11 @@ def flap_hint(body: BodyModel, evidence: list[HintEvidence], *, min_share: float
 
 
 def volume_hint_from_masks(body: BodyModel, frames, *, max_frames: int = 8, min_share: float = 0.5,
-                           **thresholds) -> VolumeHint | None:
+                           silhouettes: list | None = None, **thresholds) -> VolumeHint | None:
     """A VolumeHint from front-view ``frames`` (each with ``mask``, ``camera``, ``pose``), or None
     for tight clothing: ``hint_from_evidence`` over ``scene_hint_evidence``."""
-    return hint_from_evidence(body, scene_hint_evidence(body, frames, max_frames=max_frames, **thresholds),
-                              min_share=min_share)
+    evidence = scene_hint_evidence(body, frames, max_frames=max_frames, silhouettes=silhouettes, **thresholds)
+    return hint_from_evidence(body, evidence, min_share=min_share)
 
 
 def neighbour_strain(means: torch.Tensor, edges: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
@@ -937,7 +944,9 @@ def garment_layer_for(body: BodyModel, frames, mode: str, what: str = "scene",
             raise ValueError(f"avatar.garment_layer=on: {what}: its body model has no {', '.join(missing)} "
                              f"bones; the garment layer needs the Anny body's leg chain")
         return None
-    hint = volume_hint_from_masks(body, frames)
+    picked = spread_frames(frames)
+    silhouettes = [body_silhouette(body, f) for f in picked]  # read by the hint and the side profile
+    hint = volume_hint_from_masks(body, picked, silhouettes=silhouettes)
     if hint is None:
         if mode == "on":
             raise ValueError(f"avatar.garment_layer=on: {what}: the masks of its {len(frames)} training frames show "
@@ -948,4 +957,6 @@ def garment_layer_for(body: BodyModel, frames, mode: str, what: str = "scene",
         return None
     from .layer_profile import fit_side_profile  # it builds layers: imported here, not at the top
 
-    return build_garment_layer(body, fit_side_profile(body, hint, frames, row_step=row_step), row_step=row_step)
+    layer = build_garment_layer(body, hint, row_step=row_step)
+    fitted = fit_side_profile(body, hint, picked, row_step=row_step, layer=layer, silhouettes=silhouettes)
+    return layer if fitted is hint else build_garment_layer(body, fitted, row_step=row_step)

@@ -27,7 +27,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from ..body.base import BodyModel
 from .garment_layer import (GARMENT_LAYER_STEP, GarmentLayer, VolumeHint, _run_around, body_silhouette,
-                            build_garment_layer)
+                            build_garment_layer, spread_frames)
 
 # metres a side must reach past the rings somewhere to be stretched: smaller gaps are left to the
 # Gaussians' learned offsets (stretched by 3-7 cm, the green-coat and green-jacket photos fitted
@@ -80,7 +80,8 @@ def frame_side_reach(body: BodyModel, layer: GarmentLayer, frame, silhouette: np
 def fit_side_profile(body: BodyModel, hint: VolumeHint, frames, *, row_step: float = GARMENT_LAYER_STEP,
                      max_frames: int = 8, iterations: int = 3, min_reach: float = MIN_SIDE_REACH,
                      max_reach: float = MAX_SIDE_REACH, min_gain: float = MIN_GAIN,
-                     smooth_rows: float = 1.0) -> VolumeHint:
+                     smooth_rows: float = 1.0, layer: GarmentLayer | None = None,
+                     silhouettes: list | None = None) -> VolumeHint:
     """``hint`` with the ``side_profile`` that stretches its one-tube layer out to the masks of up to
     ``max_frames`` of ``frames`` spread evenly over the sequence; ``hint`` itself when neither side
     reaches ``min_reach`` anywhere, and for two-tube layers (trousers).
@@ -92,22 +93,25 @@ def fit_side_profile(body: BodyModel, hint: VolumeHint, frames, *, row_step: flo
     less than itself when the body is turned from the camera. A row whose step moved its edge by
     less than ``min_gain`` of itself (a ring crumpled by crossed legs, whose outermost point
     belongs to the other leg) keeps the profile it had before and is not changed again. Reaches
-    are clipped to ``max_reach``; a side that stays under ``min_reach`` is 0."""
+    are clipped to ``max_reach``; a side that stays under ``min_reach`` is 0.
+
+    ``layer``: ``hint``'s own layer, and ``silhouettes``: the posed body's in the frames
+    ``spread_frames`` picks, when the caller has them (``garment_layer_for``)."""
     if hint.two_legs or not len(frames):
         return hint
-    picks = sorted(set(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int).tolist()))
-    picked = [frames[i] for i in picks]
-    sils = [body_silhouette(body, f) for f in picked]
+    picked = spread_frames(frames, max_frames)
+    sils = silhouettes if silhouettes is not None else [body_silhouette(body, f) for f in picked]
 
-    def need(h: VolumeHint) -> tuple[GarmentLayer, np.ndarray]:
-        layer = build_garment_layer(body, h, row_step=row_step)
-        reads = np.stack([frame_side_reach(body, layer, f, s) for f, s in zip(picked, sils)])  # (F,R,2)
-        seen = np.isfinite(reads)
+    def need(h: VolumeHint, built: GarmentLayer | None = None) -> tuple[GarmentLayer, np.ndarray]:
+        if built is None:
+            built = build_garment_layer(body, h, row_step=row_step)
+        reads = np.stack([frame_side_reach(body, built, f, s) for f, s in zip(picked, sils, strict=True)])
+        seen = np.isfinite(reads)  # (F,R,2)
         med = np.nanmedian(np.where(seen.any(0), reads, 0.0), axis=0)  # rows no frame reads: 0, no warning
-        return layer, np.where(seen.sum(0) * 2 >= len(picked), med, 0.0)
+        return built, np.where(seen.sum(0) * 2 >= len(picked), med, 0.0)
 
     base = replace(hint, side_profile=())
-    layer, now = need(base)
+    layer, now = need(base, None if hint.side_profile else layer)
     R = len(now)
     zs = layer.positions.numpy().reshape(R, -1, 3)[:, :, 2].mean(1)
     profile = np.zeros((R, 2))

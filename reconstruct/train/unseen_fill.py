@@ -169,13 +169,13 @@ def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, eros
                               empty: torch.Tensor | None = None) -> int:
     """Give every garment-layer Gaussian that is not ``trained`` ((M,) bool, ``layer_faced_training``),
     not ``empty`` ((M,) bool, ``layer_off_person``: a training frame shows background where it
-    stands; it keeps its learned opacity) and not painted seen the median opacity of the trained ones (eroded by ``erosion`` grid steps)
-    in its grid row, or in the nearest row that has any; below the hem (the first row under the most
-    opaque one with a median below 0.5 whose next row and rows 3 cm under it are too) those medians are made
-    non-increasing down the rows (no ring of cloth below the hem), a row above it below 0.5 takes
-    the lower of the most opaque rows above and below it (cloth behind a hand), and medians below 0.1
-    (cloth the alpha loss was emptying) are 0. Returns how many were set (0 without a
-    layer, or when none or all are trained)."""
+    stands; it keeps its learned opacity) and not painted seen the median opacity of the trained
+    ones (eroded by ``erosion`` grid steps) in its grid row, or in the nearest row that has any;
+    below the hem (the first row under the most opaque one with a median below 0.5 whose next row
+    and rows 3 cm under it are too) those medians are made non-increasing down the rows (no ring of
+    cloth below the hem), a row above it below 0.5 takes the lower of the most opaque rows above
+    and below it (cloth behind a hand), and medians below 0.1 (cloth the alpha loss was emptying)
+    are 0. Returns how many were set (0 without a layer, or when none or all are trained)."""
     model = state.model
     if model.layer is None:
         return 0
@@ -206,19 +206,20 @@ def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, eros
     for r in range(R):
         near = min(have, key=lambda h: (abs(h - r), h))
         per_row[r] = opacity[(rows == near) & sources].median()
-    # cloth hangs from its top: below the hem (the first row under the most opaque one whose
-    # median is below one half; rows run down from the top) no row is more opaque than the one
-    # above it. Where the hem is curved the trained rows near it mix opaque and emptied columns
-    # and their medians jump: on the coat photo a row 2 cm below the hem took 0.19 between rows of
-    # 0.04-0.09, a ring hanging under the back of the coat. (Above the hem the medians' small
-    # ups and downs, 0.90-1.00 on coat seed 2, are the cloth's and stay.)
-    # The hem is a row below one half whose next row and rows within ``_HEM_RUN`` under it are all
-    # below one half too: on the grey-skirt photo a single row at the waist, its front under the hand, took 0.37
-    # from 9 Gaussians, and as the hem it emptied the skirt's whole back below it.
+    # cloth hangs from its top: below the hem (rows run down from the top) no row is more opaque
+    # than the one above it. Where the hem is curved the trained rows near it mix opaque and
+    # emptied columns and their medians jump: on the coat photo a row 2 cm below the hem took 0.19
+    # between rows of 0.04-0.09, a ring hanging under the back of the coat. (Above the hem the
+    # medians' small ups and downs, 0.90-1.00 on coat seed 2, are the cloth's and stay.) The hem
+    # is the first row under the most opaque one below one half whose next row and rows within
+    # ``_HEM_RUN`` under it are below one half too: on the grey-skirt photo a single row at the
+    # waist, its front under the hand, took 0.37 from 9 Gaussians, and as the hem it emptied the
+    # skirt's whole back below it.
     top = int(per_row.argmax())
     zs = model.layer.positions.reshape(R, -1, 3)[:, :, 2].double().mean(1)
     low = per_row < 0.5
-    def hem_like(r: int) -> bool:  # low, and so are the next row and every row within _HEM_RUN under it
+
+    def hem_like(r: int) -> bool:
         under = (zs[r] - zs[r:] <= _HEM_RUN) | (torch.arange(r, R) <= r + 1)
         return bool(low[r:][under].all())
 
@@ -232,7 +233,7 @@ def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, eros
     if len(cloth) > 2:
         above = torch.cummax(cloth, 0).values
         under = torch.flip(torch.cummax(torch.flip(cloth, [0]), 0).values, [0])
-        per_row[:len(cloth)] = torch.where(cloth < 0.5, torch.maximum(cloth, torch.minimum(above, under)), cloth)
+        per_row[:len(cloth)] = torch.where(cloth < 0.5, torch.minimum(above, under), cloth)  # both >= cloth
     # ... and a row whose trained cloth the alpha loss was emptying (median below
     # ``_EMPTY_LAYER_OPACITY``: not yet at zero where few rays reached it) is empty: the hem band's
     # rows are dense, and eight rows of 0.04-0.09 under the coat photo's hem stacked to a grey haze
