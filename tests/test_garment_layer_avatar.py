@@ -629,6 +629,32 @@ def test_a_low_row_above_the_hem_is_cloth_behind_a_hand(layered):
             m.layer_opacity.copy_(saved_op)
 
 
+def test_the_model_finds_the_legs_under_its_layers_hem(layered):
+    """``model_layer_shows_body`` on the model's own Gaussians: skin-coloured legs, grey cloth whose
+    seen bottom row shows the legs' colour; only that row is flagged, and no body Gaussian."""
+    from reconstruct.avatar.layer_through import model_layer_shows_body
+    from reconstruct.body.parts import PART_INDEX
+
+    m = layered.model
+    N, M = m.num_body, m.num_layer
+    R, C = m.layer.grid_shape
+    rows = m.layer_rc[:, 0].numpy()
+    skin, grey = np.array([0.66, 0.5, 0.45]), np.array([0.45, 0.45, 0.47])
+    parts = m.parts()
+    colours = np.tile(grey, (N + M, 1))
+    legs = np.isin(parts[:N], [PART_INDEX[p] for p in ("thigh.L", "thigh.R", "shin.L", "shin.R")])
+    colours[:N][legs] = skin
+    front = m.base_positions[N:, 1].numpy() < m.base_positions[N:, 1].numpy().mean()
+    colours[N:][front & (rows == R - 1)] = skin
+    seen = np.ones(N + M, bool)
+    seen[N:] = front
+    flags = model_layer_shows_body(m, torch.as_tensor(seen), torch.as_tensor(colours))
+    assert flags.shape == (N + M,) and not flags[:N].any()
+    hem = front & (rows == R - 1)
+    assert flags[N:][hem].mean() > 0.9, flags[N:][hem]
+    assert not flags[N:][~hem].any()
+
+
 def test_layer_faced_training_is_the_front_of_the_tube_for_a_front_camera(layered):
     """Against an independent reference: the cosine between each posed layer normal and the
     direction to the camera, in float64, over every training frame."""

@@ -113,6 +113,10 @@ class Stage1Config(StageSettings):
     # (more than 2 px off the mask: empty air, whichever way they face) keep their learned opacity
     # instead of the row's (train/unseen_fill.py, layer_off_person)
     layer_off_person: bool = True
+    # ... and the seen layer Gaussians at the layer's edges whose colour is the body's seen just past
+    # the edge (legs under a hem, a blouse over a waistband: avatar/layer_through.py) are no colour
+    # source for the layer's unseen side
+    layer_through: bool = True
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # each given-view step composites its target on a uniformly random colour and renders over the
@@ -168,7 +172,8 @@ class Stage1Config(StageSettings):
         """The settings before the Stage I fidelity work (GaussianAvatar's schedule, every Gaussian
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False,
-                    seen_on_person=False, seen_min_weight=None, layer_off_person=False, random_background=False,
+                    seen_on_person=False, seen_min_weight=None, layer_off_person=False, layer_through=False,
+                    random_background=False,
                     avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
 
@@ -185,6 +190,7 @@ class Stage1Config(StageSettings):
         d.setdefault("seen_on_person", False)  # recorded before the seen flags were recounted on the person
         d.setdefault("seen_min_weight", None)  # recorded before the recount counted blended Gaussians
         d.setdefault("layer_off_person", False)  # recorded before the layer's fill left off-person Gaussians empty
+        d.setdefault("layer_through", False)  # recorded before the layer's fill told the body through it from cloth
         d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
         d.setdefault("lambda_layer_cover", 0.0)  # recorded before the layer's cover prior existed
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:

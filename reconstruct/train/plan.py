@@ -14,7 +14,7 @@ from ..appearance.wrap_fill import grazing_rule_for
 from .seen_recount import keep_seen_on_person, person_coverage
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (fill_unseen_colors, fill_unseen_layer_opacity, layer_faced_training, layer_off_person,
-                          layer_reached)
+                          layer_reached, layer_through)
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
@@ -80,7 +80,7 @@ class Stage1Plan(StagePlan):
         # the avatar's blend weights on the training frames, once, for the recount and the layer
         coverage = (person_coverage(state, context.data, hit_threshold=s.hit_threshold, weights=True)
                     if s.seen_min_weight is not None and (s.seen_on_person or s.fill_unseen) else None)
-        blended_only = None
+        not_sources = None
         if s.seen_on_person:
             k = keep_seen_on_person(state, context.data, hit_threshold=s.hit_threshold,
                                     min_weight=s.seen_min_weight, coverage=coverage)
@@ -88,7 +88,7 @@ class Stage1Plan(StagePlan):
                 notes.append(f"{k.dropped} Gaussians seen only off the person's silhouette are unseen")
             if k.added:
                 notes.append(f"{k.added} Gaussians the images blended into the person (no first hit) are seen")
-            blended_only = k.blended_only
+            not_sources = k.blended_only  # seen by their blend weight alone: no colour source
         if s.fill_unseen:
             # the layer's opacity first: the colours of the body under the cloth follow the cloth
             # where it is opaque (``layer_cover``)
@@ -98,9 +98,14 @@ class Stage1Plan(StagePlan):
                 if coverage is not None:
                     trained |= layer_reached(state, coverage.total_max, s.seen_min_weight)
                 empty = layer_off_person(state, context.data) if s.layer_off_person else None
+                if s.layer_through:  # no colour source for the layer's unseen side
+                    through = layer_through(state)
+                    if through is not None and through.any():
+                        notes.append(f"{int(through.sum())} garment-layer Gaussians show the body past the layer's edge, not cloth")
+                        not_sources = through if not_sources is None else not_sources | through
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
-                                   not_sources=blended_only)
+                                   not_sources=not_sources)
             if n:
                 notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
             if n_layer:

@@ -44,6 +44,7 @@ from scipy.ndimage import binary_dilation
 from ..appearance.propagation import erode
 from ..appearance.wrap_fill import wrap_fill_colors
 from ..avatar.layer_cover import model_body_under_layer
+from ..avatar.layer_through import model_layer_shows_body
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
@@ -91,6 +92,17 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     residual.data[idx.to(residual.device)] = ((target - decoded_logit) / cfg.color_residual_gain).to(
         residual.device, residual.dtype)
     return int(len(idx))
+
+
+@torch.no_grad()
+def layer_through(state: AvatarState) -> torch.Tensor | None:
+    """(N+M,) bool: the seen garment-layer Gaussians that show the body behind them past the layer's
+    edges (``avatar.layer_through``), from the painted seen flags and the canonical colours; None
+    without a layer."""
+    model = state.model
+    flags = model_layer_shows_body(model, state.edits.paint(state.seen).cpu().bool(),
+                                   model.canonical(None).colors.detach().cpu())
+    return None if flags is None else torch.as_tensor(flags)
 
 
 # layer opacities are set this far inside (0, 1) so that their logits stay finite

@@ -1,0 +1,189 @@
+"""The garment layer's Gaussians that show the body behind them, not cloth: below a skirt's hem the
+layer hangs in front of the legs, and training may make its Gaussians there opaque in the legs'
+colour (the front fits either way: a transparent layer with the legs behind, or an opaque one
+painted like them).
+
+Why. The layer's unseen side takes its colour (``wrap_fill``) from the seen layer Gaussians at the
+same height. On the grey-skirt photo the layer reaches below the hem in front of the legs; its seen
+Gaussians there were skin-coloured and opaque, and the skirt's back took a band of skin colour
+across its whole width in the rows above its hem.
+
+Which. The body shows through at the layer's edges: under a hem (the legs, a coat's trousers) and
+above a waistband (a blouse). For each column of the layer's grid, and each of its two edges (the
+bottom row, the top row), the body's colour is the median colour of the seen body Gaussians of the
+parts a layer covers within ``reach`` of the column's edge Gaussian (at least ``k``; not the few
+nearest: next to the edge they are the shadow between the legs, or took the cloth's colour), among
+those the cloth does not hide (``layer_cover``: what the camera saw of the body just past the edge) and that
+lie past the edge's height (below the bottom row, above the top row; ``edge_slack`` of leeway). The
+cloth's colours are those of the seen layer Gaussians more than ``depth`` in from both edges. Walking
+the column in from the edge (up to ``depth``), each seen layer Gaussian whose colour is within
+``tolerance`` of the body's, and nearer to it than to the cloth's, shows the body; the walk stops at
+the first seen one that does not (the cloth). Unseen ones are passed over.
+
+Colours are compared in an opponent space with brightness weighted down (``colour_distance``: the
+lit knee and the shaded shin are one skin), each seen layer Gaussian's as the median of its row's
+seen ones within ``window`` columns (a single Gaussian of a pleated skirt is near black or near
+white), and the distance to the cloth is that to the nearest ``cloth_share`` of its colours (at
+least ``k``): a hand or a few odd Gaussians inside it are not the cloth's colour. Where the cloth has the body's colour somewhere inside (a skin-toned skirt, a print)
+the two cannot be told apart and that edge is left alone; when more than ``max_share`` of the seen
+layer would be flagged, none is.
+
+Use. Stage I's finish (``train/plan.py``, ``Stage1Config.layer_through``) takes them out of the
+colour sources of the layer's unseen side; their opacity, and the opacity fill, are left as they
+are (counted as empty air in the fill, the open jacket photo's back came out shorter, over the
+white shirt's hem).
+
+Measured (docs/loose_clothing.md, "The legs under a hem"): on the grey-skirt photo (300 Stage I
+steps) 167 of the layer's seen opaque Gaussians, in its bottom rows; the back's rows above the hem
+went from skin (0.64, 0.53, 0.49) to the skirt's grey (0.41, 0.41, 0.40).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .layer_clearance import covered_ids
+from .layer_cover import model_body_under_layer
+
+
+@dataclass(frozen=True)
+class ThroughConfig:
+    tolerance: float = 0.12  # a layer colour this close to the body's (``colour_distance``), and closer to it than to the cloth's, shows the body
+    min_contrast: float = 0.08  # how far the body's colour must be from the cloth's for the two to be told apart
+    luminance_weight: float = 0.5  # brightness against hue in ``colour_distance`` (shading moves brightness)
+    depth: float = 0.12  # metres: how far in from the edge (in height) the walk goes
+    reach: float = 0.25  # metres: the body Gaussians past the edge this close to the edge Gaussian are its reference
+    k: int = 8  # fewest reference Gaussians, and fewest cloth colours
+    edge_slack: float = 0.02  # metres: "past the edge" starts this far inside it
+    max_share: float = 0.5  # more than this share of the seen layer flagged: the garment is the body's colour
+    cloth_share: float = 0.05  # a colour is the cloth's when this share of its colours (at least k) lie near it
+    min_opacity: float = 0.5  # seen layer Gaussians less opaque than this are passed over
+    window: int = 2  # columns: a seen layer Gaussian's colour is the median of the seen ones this close in its row
+
+
+def layer_shows_body(body_positions: np.ndarray, body_parts: np.ndarray, body_colors: np.ndarray,
+                     body_seen: np.ndarray, body_hidden: np.ndarray, layer_positions: np.ndarray,
+                     layer_colors: np.ndarray, layer_seen: np.ndarray, layer_rc: np.ndarray,
+                     grid_shape: tuple[int, int], layer_opacity: np.ndarray | None = None,
+                     config: ThroughConfig = ThroughConfig()) -> np.ndarray:
+    """(M,) bool over the layer's Gaussians: the seen ones that show the body behind them (module
+    docstring). Canonical positions; ``body_hidden``: (N,) bool, the body Gaussians the cloth hides
+    (``layer_cover.body_under_layer`` >= 0); ``layer_rc``: (M,2) grid row (0 the top) and column of
+    each layer Gaussian on a ``grid_shape`` (rows, cols) grid; colours in [0, 1]."""
+    cfg = config
+    M = len(layer_positions)
+    out = np.zeros(M, bool)
+    layer_seen = np.asarray(layer_seen, bool)
+    if layer_opacity is not None:  # a transparent Gaussian shows nothing: passed over like an unseen one
+        layer_seen = layer_seen & (np.asarray(layer_opacity, np.float64) >= cfg.min_opacity)
+    if M == 0 or not layer_seen.any():
+        return out
+    R, C = grid_shape
+    rc = np.asarray(layer_rc, np.int64)
+    index = np.full((R, C), -1, np.int64)
+    index[rc[:, 0], rc[:, 1]] = np.arange(M)
+    lpos = np.asarray(layer_positions, np.float64)
+    lcol = np.asarray(layer_colors, np.float64)
+    ids = covered_ids(body_parts)
+    ref = ids[np.asarray(body_seen, bool)[ids] & ~np.asarray(body_hidden, bool)[ids]]
+    if len(ref) < cfg.k:
+        return out
+    rpos = np.asarray(body_positions, np.float64)[ref]
+    rcol = np.asarray(body_colors, np.float64)[ref]
+    tree = cKDTree(rpos)
+    w = cfg.luminance_weight
+    local = _local_median(lcol, layer_seen, index, cfg.window)
+    # the cloth: the seen layer's colours farther than ``depth`` from both of its column's edges
+    z = np.full((R, C), np.nan)
+    z[rc[:, 0], rc[:, 1]] = lpos[:, 2]
+    top, bottom = z[0, rc[:, 1]], z[R - 1, rc[:, 1]]
+    inside = layer_seen & (top - lpos[:, 2] > cfg.depth) & (lpos[:, 2] - bottom > cfg.depth)
+    if inside.sum() < cfg.k:
+        return out
+    cloth = cKDTree(opponent(local[inside], w))
+    k_cloth = min(int(inside.sum()), max(cfg.k, int(np.ceil(cfg.cloth_share * inside.sum()))))
+
+    def to_cloth(colour):  # distance to the cloth's k_cloth-th nearest colour (its odd few ignored)
+        return cloth.query(opponent(colour, w), k=k_cloth)[0][-1]
+
+    for edge_row, step, below in ((R - 1, -1, True), (0, 1, False)):
+        for c in range(C):
+            e = index[edge_row, c]
+            if e < 0:
+                continue
+            near = [j for j in tree.query_ball_point(lpos[e], cfg.reach)
+                    if (rpos[j, 2] <= lpos[e, 2] + cfg.edge_slack if below else rpos[j, 2] >= lpos[e, 2] - cfg.edge_slack)]
+            if len(near) < cfg.k:
+                continue
+            body = np.median(rcol[near], axis=0)
+            if to_cloth(body) < cfg.min_contrast:
+                continue  # the cloth has the body's colour: the two cannot be told apart here
+            for r in range(edge_row, -1 if step < 0 else R, step):
+                i = index[r, c]
+                if i < 0 or not layer_seen[i]:
+                    continue
+                if abs(lpos[i, 2] - lpos[e, 2]) > cfg.depth:
+                    break
+                to_body = colour_distance(local[i], body, w)
+                if to_body > cfg.tolerance or to_body >= to_cloth(local[i]):
+                    break
+                out[i] = True
+    if out.sum() > cfg.max_share * layer_seen.sum():
+        return np.zeros(M, bool)
+    return out
+
+
+def opponent(colors: np.ndarray, luminance_weight: float = 0.5) -> np.ndarray:
+    """RGB colours (..., 3) in an opponent space: (r - g, g - b, ``luminance_weight`` times the mean
+    brightness)."""
+    x = np.asarray(colors, np.float64)
+    return np.stack([x[..., 0] - x[..., 1], x[..., 1] - x[..., 2], luminance_weight * x.mean(-1)], -1)
+
+
+def colour_distance(a: np.ndarray, b: np.ndarray, luminance_weight: float = 0.5) -> np.ndarray:
+    """Distance between RGB colours in the ``opponent`` space. Light and shadow on one surface move
+    its brightness more than its hue: on the grey-skirt photo the lit knees (0.70, 0.57, 0.51) are
+    0.18 from the shaded shins (0.64, 0.45, 0.39) in RGB and 0.16 from the skirt's grey, here 0.08
+    and 0.14."""
+    return np.linalg.norm(opponent(a, luminance_weight) - opponent(b, luminance_weight), axis=-1)
+
+
+def _local_median(colors: np.ndarray, seen: np.ndarray, index: np.ndarray, h: int) -> np.ndarray:
+    """(M,3): for each seen layer Gaussian the per-channel median colour of the seen ones in its row
+    within ``h`` columns (wrapping round the tube). A single Gaussian's colour is too noisy to
+    classify (on the pleated grey skirt neighbours alternate between 0.06 and 0.84); the window runs
+    along the row, across pleats, and not across a hem, which runs along the rows."""
+    R, C = index.shape
+    out = colors.copy()
+    for r, c in zip(*np.nonzero(index >= 0)):
+        i = index[r, c]
+        if not seen[i]:
+            continue
+        win = index[r, np.arange(c - h, c + h + 1) % C]
+        win = win[win >= 0]
+        win = win[seen[win]]
+        out[i] = np.median(colors[win], axis=0)
+    return out
+
+
+def model_layer_shows_body(model, seen, colors, config: ThroughConfig = ThroughConfig()) -> np.ndarray | None:
+    """``layer_shows_body`` for an ``AvatarModel``: (N+M,) bool over all its Gaussians (False on the
+    body's), from the (N+M,) ``seen`` flags and canonical ``colors``; None without a layer. The cloth
+    hides the body where ``layer_cover.model_body_under_layer`` says so (the layer's current
+    opacities)."""
+    if model.layer is None or model.num_layer == 0:
+        return None
+    N = model.num_body
+    pos = model.base_positions.detach().cpu().double().numpy()
+    col = np.asarray(colors.detach().cpu() if hasattr(colors, "detach") else colors, np.float64)
+    seen = np.asarray(seen.cpu() if hasattr(seen, "cpu") else seen, bool)
+    hidden = model_body_under_layer(model)[:N] >= 0
+    opacity = model.opacities().detach().cpu().double().numpy()[N:]
+    flags = layer_shows_body(pos[:N], model.parts()[:N], col[:N], seen[:N], hidden, pos[N:], col[N:], seen[N:],
+                             model.layer_rc.cpu().numpy(), model.layer.grid_shape, opacity, config)
+    out = np.zeros(len(pos), bool)
+    out[N:] = flags
+    return out

@@ -1,0 +1,151 @@
+"""The garment layer's Gaussians that show the body past its edges (reconstruct/avatar/layer_through.py)."""
+
+import numpy as np
+import pytest
+
+from reconstruct.avatar.layer_through import ThroughConfig, colour_distance, layer_shows_body
+from reconstruct.body.parts import PART_INDEX
+
+SKIN = np.array([0.66, 0.50, 0.45])
+SHIRT = np.array([0.92, 0.92, 0.90])
+R, C = 24, 48
+TOP, HEM = 0.0, -0.5  # the layer's top and bottom rows, metres
+
+
+def _tube(radius=0.25):
+    """Layer grid points on a cylinder, column 0 at the front (-y), rows from TOP down to HEM."""
+    rows, cols = np.meshgrid(np.arange(R), np.arange(C), indexing="ij")
+    rows, cols = rows.ravel(), cols.ravel()
+    ang = 2 * np.pi * cols / C
+    z = TOP + (HEM - TOP) * rows / (R - 1)
+    pos = np.c_[radius * np.sin(ang), -radius * np.cos(ang), z]
+    return pos, np.c_[rows, cols]
+
+
+def _body(rng):
+    """Seen front surface points of two shins under the layer (skin) and of the torso above it (a
+    shirt); none hidden by the cloth."""
+    pts, parts, cols = [], [], []
+    for x, part in ((0.1, "shin.L"), (-0.1, "shin.R")):
+        z = rng.uniform(HEM - 0.4, HEM - 0.01, 300)
+        a = rng.uniform(-np.pi / 2, np.pi / 2, 300)
+        pts.append(np.c_[x + 0.06 * np.sin(a), -0.06 * np.cos(a), z])
+        parts += [PART_INDEX[part]] * 300
+        cols.append(SKIN + rng.uniform(-0.03, 0.03, (300, 3)))
+    z = rng.uniform(TOP + 0.01, TOP + 0.3, 400)
+    a = rng.uniform(-np.pi / 2, np.pi / 2, 400)
+    pts.append(np.c_[0.15 * np.sin(a), -0.12 * np.cos(a), z])
+    parts += [PART_INDEX["torso"]] * 400
+    cols.append(SHIRT + rng.uniform(-0.03, 0.03, (400, 3)))
+    pts, cols = np.concatenate(pts), np.concatenate(cols)
+    return pts, np.asarray(parts), cols, np.ones(len(pts), bool), np.zeros(len(pts), bool)
+
+
+def _layer_colours(rng, rc, pos, cloth=np.array([0.5, 0.5, 0.5])):
+    """Pleated cloth (alternating columns 0.15 lighter and darker), seen at the front; the three
+    bottom rows over the legs show noisy skin and the top row over the chest the shirt."""
+    col = cloth + np.where(rc[:, 1] % 2 == 0, 0.15, -0.15)[:, None] + rng.uniform(-0.02, 0.02, (len(rc), 3))
+    seen = pos[:, 1] < -0.05
+    legs = seen & (rc[:, 0] >= R - 3) & (np.abs(pos[:, 0]) < 0.17)
+    col[legs] = SKIN + rng.uniform(-0.06, 0.06, (legs.sum(), 3))
+    chest = seen & (rc[:, 0] == 0) & (np.abs(pos[:, 0]) < 0.12)
+    col[chest] = SHIRT + rng.uniform(-0.03, 0.03, (chest.sum(), 3))
+    return np.clip(col, 0, 1), seen, legs, chest
+
+
+def _near(region, rc, h=ThroughConfig().window):
+    """``region`` widened by ``h`` columns along the rows: the colour window's reach."""
+    grid = np.zeros((R, C), bool)
+    grid[rc[region, 0], rc[region, 1]] = True
+    wide = np.zeros_like(grid)
+    for d in range(-h, h + 1):
+        wide |= np.roll(grid, d, axis=1)
+    return wide[rc[:, 0], rc[:, 1]]
+
+
+def _flags(body, pos, col, seen, rc, **kw):
+    bp, bparts, bcol, bseen, bhidden = body
+    return layer_shows_body(bp, bparts, bcol, bseen, bhidden, pos, col, seen, rc, (R, C), config=ThroughConfig(**kw))
+
+
+def test_colour_distance_is_the_opponent_space_norm():
+    a, b = np.array([0.7, 0.57, 0.51]), np.array([0.55, 0.55, 0.54])
+    want = np.sqrt((0.13 - 0.0) ** 2 + (0.06 - 0.01) ** 2 + (0.5 * (a.mean() - b.mean())) ** 2)
+    assert colour_distance(a, b) == pytest.approx(want, abs=1e-12)
+    assert colour_distance(b, a) == pytest.approx(want, abs=1e-12)
+    # a change of brightness alone counts half, one of hue in full
+    assert colour_distance([0.5, 0.5, 0.5], [0.6, 0.6, 0.6]) == pytest.approx(0.05)
+    assert colour_distance([0.5, 0.5, 0.5], [0.6, 0.5, 0.5]) > 0.1
+
+
+def test_the_legs_under_the_hem_and_the_shirt_over_the_top_show_the_body():
+    rng = np.random.default_rng(0)
+    pos, rc = _tube()
+    col, seen, legs, chest = _layer_colours(rng, rc, pos)
+    flags = _flags(_body(rng), pos, col, seen, rc)
+    assert not (flags & ~_near(legs | chest, rc)).any(), "cloth taken for the body"
+    assert flags[legs].mean() > 0.9
+    assert flags[chest].mean() > 0.9
+    assert not (flags & ~seen).any()
+
+
+def test_the_walk_from_the_edge_stops_at_the_cloth():
+    """Skin-coloured cloth above a cloth hem band (a print over the hem) is not the body: the walk
+    from the edge stops at the first cloth in its column. The other columns still find the legs."""
+    rng = np.random.default_rng(1)
+    pos, rc = _tube()
+    col, seen, legs, _ = _layer_colours(rng, rc, pos)
+    band = legs & np.isin(rc[:, 1], [1, 2, 3, 4])
+    col[band & (rc[:, 0] >= R - 2)] = 0.5  # the hem band, grey
+    print_ = seen & np.isin(rc[:, 1], [1, 2, 3, 4]) & (rc[:, 0] >= R - 5) & (rc[:, 0] < R - 2)
+    col[print_] = SKIN
+    flags = _flags(_body(rng), pos, col, seen, rc)
+    assert not flags[print_].any()
+    assert flags[legs & ~_near(band, rc)].mean() > 0.9
+
+
+def test_a_body_coloured_print_inside_the_cloth_stops_the_reading():
+    """Cloth that shows the body's colour well inside it (a skin-toned print mid-skirt): the legs'
+    colour is the cloth's too, and nothing is flagged."""
+    rng = np.random.default_rng(5)
+    pos, rc = _tube()
+    col, seen, legs, chest = _layer_colours(rng, rc, pos)
+    patch = seen & (rc[:, 0] >= 10) & (rc[:, 0] <= 13) & (np.abs(pos[:, 0]) < 0.17)
+    col[patch] = SKIN
+    flags = _flags(_body(rng), pos, col, seen, rc)
+    assert not flags[patch | legs].any()
+    assert flags[chest].mean() > 0.9
+
+
+def test_nothing_is_told_apart_on_cloth_of_the_bodys_colour():
+    """A skin-toned skirt over bare legs: the body and the cloth cannot be told apart, nothing is flagged."""
+    rng = np.random.default_rng(2)
+    pos, rc = _tube()
+    col, seen, _, _ = _layer_colours(rng, rc, pos, cloth=SKIN)
+    col = SKIN + rng.uniform(-0.05, 0.05, col.shape)
+    assert not _flags(_body(rng), pos, col, seen, rc).any()
+
+
+def test_more_than_the_share_flagged_is_taken_for_cloth():
+    rng = np.random.default_rng(3)
+    pos, rc = _tube()
+    col, seen, legs, chest = _layer_colours(rng, rc, pos)
+    body = _body(rng)
+    flags = _flags(body, pos, col, seen, rc)
+    share = flags.sum() / seen.sum()
+    assert 0 < share < 0.5
+    assert not _flags(body, pos, col, seen, rc, max_share=share * 0.9).any()
+
+
+def test_no_reference_within_reach_flags_nothing():
+    rng = np.random.default_rng(4)
+    pos, rc = _tube()
+    col, seen, legs, chest = _layer_colours(rng, rc, pos)
+    bp, bparts, bcol, bseen, bhidden = _body(rng)
+    far = bp + np.array([0.0, 0.0, -5.0]) * (bparts != PART_INDEX["torso"])[:, None]
+    flags = _flags((far, bparts, bcol, bseen, bhidden), pos, col, seen, rc)
+    assert not flags[legs].any()
+    assert flags[chest].mean() > 0.9
+    # the body the cloth hides is no reference either
+    hidden = bparts != PART_INDEX["torso"]
+    assert not _flags((bp, bparts, bcol, bseen, hidden), pos, col, seen, rc)[legs].any()
