@@ -78,14 +78,15 @@ def test_colour_distance_is_the_opponent_space_norm():
     assert colour_distance([0.5, 0.5, 0.5], [0.6, 0.5, 0.5]) > 0.1
 
 
-def test_the_legs_under_the_hem_and_the_shirt_over_the_top_show_the_body():
+def test_the_legs_under_the_hem_show_the_body_and_the_top_is_not_read():
+    """Noisy skin over the legs under the hem is found; the shirt showing over the layer's top is
+    not (above the top the body is mostly the same garment, a dress's bodice)."""
     rng = np.random.default_rng(0)
     pos, rc = _tube()
     col, seen, legs, chest = _layer_colours(rng, rc, pos)
     flags = _flags(_body(rng), pos, col, seen, rc)
-    assert not (flags & ~_near(legs | chest, rc)).any(), "cloth taken for the body"
+    assert not (flags & ~_near(legs, rc)).any(), "cloth taken for the body"
     assert flags[legs].mean() > 0.9
-    assert flags[chest].mean() > 0.9
     assert not (flags & ~seen).any()
 
 
@@ -109,12 +110,10 @@ def test_a_body_coloured_print_inside_the_cloth_stops_the_reading():
     colour is the cloth's too, and nothing is flagged."""
     rng = np.random.default_rng(5)
     pos, rc = _tube()
-    col, seen, legs, chest = _layer_colours(rng, rc, pos)
+    col, seen, legs, _ = _layer_colours(rng, rc, pos)
     patch = seen & (rc[:, 0] >= 10) & (rc[:, 0] <= 13) & (np.abs(pos[:, 0]) < 0.17)
     col[patch] = SKIN
-    flags = _flags(_body(rng), pos, col, seen, rc)
-    assert not flags[patch | legs].any()
-    assert flags[chest].mean() > 0.9
+    assert not _flags(_body(rng), pos, col, seen, rc).any()
 
 
 def test_nothing_is_told_apart_on_cloth_of_the_bodys_colour():
@@ -129,7 +128,7 @@ def test_nothing_is_told_apart_on_cloth_of_the_bodys_colour():
 def test_more_than_the_share_flagged_is_taken_for_cloth():
     rng = np.random.default_rng(3)
     pos, rc = _tube()
-    col, seen, legs, chest = _layer_colours(rng, rc, pos)
+    col, seen, _, _ = _layer_colours(rng, rc, pos)
     body = _body(rng)
     flags = _flags(body, pos, col, seen, rc)
     share = flags.sum() / seen.sum()
@@ -140,12 +139,11 @@ def test_more_than_the_share_flagged_is_taken_for_cloth():
 def test_no_reference_within_reach_flags_nothing():
     rng = np.random.default_rng(4)
     pos, rc = _tube()
-    col, seen, legs, chest = _layer_colours(rng, rc, pos)
+    col, seen, legs, _ = _layer_colours(rng, rc, pos)
     bp, bparts, bcol, bseen, bhidden = _body(rng)
     far = bp + np.array([0.0, 0.0, -5.0]) * (bparts != PART_INDEX["torso"])[:, None]
-    flags = _flags((far, bparts, bcol, bseen, bhidden), pos, col, seen, rc)
-    assert not flags[legs].any()
-    assert flags[chest].mean() > 0.9
+    assert _flags((bp, bparts, bcol, bseen, bhidden), pos, col, seen, rc)[legs].any()
+    assert not _flags((far, bparts, bcol, bseen, bhidden), pos, col, seen, rc).any()
     # the body the cloth hides is no reference either
     hidden = bparts != PART_INDEX["torso"]
-    assert not _flags((bp, bparts, bcol, bseen, hidden), pos, col, seen, rc)[legs].any()
+    assert not _flags((bp, bparts, bcol, bseen, hidden), pos, col, seen, rc).any()

@@ -1,35 +1,39 @@
-"""The garment layer's Gaussians that show the body behind them, not cloth: below a skirt's hem the
-layer hangs in front of the legs, and training may make its Gaussians there opaque in the legs'
-colour (the front fits either way: a transparent layer with the legs behind, or an opaque one
-painted like them).
+"""The garment layer's Gaussians under its hem that show the body behind them, not cloth: below a
+skirt's hem the layer hangs in front of the legs, and training may make its Gaussians there opaque in
+the legs' colour (the front fits either way: a transparent layer with the legs behind, or an opaque
+one painted like them).
 
 Why. The layer's unseen side takes its colour (``wrap_fill``) from the seen layer Gaussians at the
 same height. On the grey-skirt photo the layer reaches below the hem in front of the legs; its seen
 Gaussians there were skin-coloured and opaque, and the skirt's back took a band of skin colour
 across its whole width in the rows above its hem.
 
-Which. The body shows through at the layer's edges: under a hem (the legs, a coat's trousers) and
-above a waistband (a blouse). For each column of the layer's grid, and each of its two edges (the
-bottom row, the top row), the body's colour is the median colour of the seen body Gaussians of the
-parts a layer covers within ``reach`` of the column's edge Gaussian (at least ``k``; not the few
-nearest: next to the edge they are the shadow between the legs, or took the cloth's colour), among
-those the cloth does not hide (``layer_cover``: what the camera saw of the body just past the edge) and that
-lie past the edge's height (below the bottom row, above the top row; ``edge_slack`` of leeway). The
-cloth's colours are those of the seen layer Gaussians more than ``depth`` in from both edges. Walking
-the column in from the edge (up to ``depth``), each seen layer Gaussian whose colour is within
-``tolerance`` of the body's, and nearer to it than to the cloth's, shows the body; the walk stops at
-the first seen one that does not (the cloth). Unseen ones are passed over.
+Which. For each column of the layer's grid, the body's colour under the hem is the median colour of
+the seen body Gaussians of the parts a layer covers within ``reach`` of the column's bottom
+Gaussian and below it (``edge_slack`` of leeway), among those the cloth does not hide
+(``layer_cover``): the legs, or a coat's trousers, that the camera saw just past the hem. All of
+them, at least ``k``, not the few nearest: next to the hem those are the shadow between the legs, or
+took the cloth's colour. The cloth's colours are those of the seen layer Gaussians more than
+``depth`` in from both of the column's ends. Walking the column up from its bottom row (at most
+``depth``), each seen opaque layer Gaussian whose colour is within ``tolerance`` of the body's, and
+nearer to it than to the cloth's, shows the body; the walk stops at the first that does not (the
+cloth). Unseen and transparent ones are passed over.
+
+The layer's top is not read: there the body above it is mostly the same garment (a dress's bodice
+on the torso over its skirt's layer), and on the synthetic dress of seed 2 the top rows flagged
+that way left the back's top rows to the neckline's skin (unseen views -0.03 dB).
 
 Colours are compared in an opponent space with brightness weighted down (``colour_distance``: the
 lit knee and the shaded shin are one skin), each seen layer Gaussian's as the median of its row's
 seen ones within ``window`` columns (a single Gaussian of a pleated skirt is near black or near
 white), and the distance to the cloth is that to the nearest ``cloth_share`` of its colours (at
-least ``k``): a hand or a few odd Gaussians inside it are not the cloth's colour. Where the cloth has the body's colour somewhere inside (a skin-toned skirt, a print)
-the two cannot be told apart and that edge is left alone; when more than ``max_share`` of the seen
-layer would be flagged, none is.
+least ``k``): a hand or a few odd Gaussians inside it are not the cloth's colour. Where the cloth
+has the body's colour somewhere inside (a skin-toned skirt, a print) the two cannot be told apart
+and that column is left alone; when more than ``max_share`` of the seen layer would be flagged,
+none is.
 
 Use. Stage I's finish (``train/plan.py``, ``Stage1Config.layer_through``) takes them out of the
-colour sources of the layer's unseen side; their opacity, and the opacity fill, are left as they
+colour sources of the layer's unseen side. Their opacity, and the opacity fill, are left as they
 are (counted as empty air in the fill, the open jacket photo's back came out shorter, over the
 white shirt's hem).
 
@@ -54,10 +58,10 @@ class ThroughConfig:
     tolerance: float = 0.12  # a layer colour this close to the body's (``colour_distance``), and closer to it than to the cloth's, shows the body
     min_contrast: float = 0.08  # how far the body's colour must be from the cloth's for the two to be told apart
     luminance_weight: float = 0.5  # brightness against hue in ``colour_distance`` (shading moves brightness)
-    depth: float = 0.12  # metres: how far in from the edge (in height) the walk goes
-    reach: float = 0.25  # metres: the body Gaussians past the edge this close to the edge Gaussian are its reference
+    depth: float = 0.12  # metres: how far up from the bottom row (in height) the walk goes
+    reach: float = 0.25  # metres: the body Gaussians under the hem this close to the column's bottom Gaussian are its reference
     k: int = 8  # fewest reference Gaussians, and fewest cloth colours
-    edge_slack: float = 0.02  # metres: "past the edge" starts this far inside it
+    edge_slack: float = 0.02  # metres: "under the hem" starts this far above the bottom row
     max_share: float = 0.5  # more than this share of the seen layer flagged: the garment is the body's colour
     cloth_share: float = 0.05  # a colour is the cloth's when this share of its colours (at least k) lie near it
     min_opacity: float = 0.5  # seen layer Gaussians less opaque than this are passed over
@@ -96,7 +100,7 @@ def layer_shows_body(body_positions: np.ndarray, body_parts: np.ndarray, body_co
     tree = cKDTree(rpos)
     w = cfg.luminance_weight
     local = _local_median(lcol, layer_seen, index, cfg.window)
-    # the cloth: the seen layer's colours farther than ``depth`` from both of its column's edges
+    # the cloth: the seen layer's colours farther than ``depth`` from both ends of their column
     z = np.full((R, C), np.nan)
     z[rc[:, 0], rc[:, 1]] = lpos[:, 2]
     top, bottom = z[0, rc[:, 1]], z[R - 1, rc[:, 1]]
@@ -109,28 +113,26 @@ def layer_shows_body(body_positions: np.ndarray, body_parts: np.ndarray, body_co
     def to_cloth(colour):  # distance to the cloth's k_cloth-th nearest colour (its odd few ignored)
         return cloth.query(opponent(colour, w), k=k_cloth)[0][-1]
 
-    for edge_row, step, below in ((R - 1, -1, True), (0, 1, False)):
-        for c in range(C):
-            e = index[edge_row, c]
-            if e < 0:
+    for c in range(C):
+        e = index[R - 1, c]
+        if e < 0:
+            continue
+        near = [j for j in tree.query_ball_point(lpos[e], cfg.reach) if rpos[j, 2] <= lpos[e, 2] + cfg.edge_slack]
+        if len(near) < cfg.k:
+            continue
+        body = np.median(rcol[near], axis=0)
+        if to_cloth(body) < cfg.min_contrast:
+            continue  # the cloth has the body's colour: the two cannot be told apart here
+        for r in range(R - 1, -1, -1):
+            i = index[r, c]
+            if i < 0 or not layer_seen[i]:
                 continue
-            near = [j for j in tree.query_ball_point(lpos[e], cfg.reach)
-                    if (rpos[j, 2] <= lpos[e, 2] + cfg.edge_slack if below else rpos[j, 2] >= lpos[e, 2] - cfg.edge_slack)]
-            if len(near) < cfg.k:
-                continue
-            body = np.median(rcol[near], axis=0)
-            if to_cloth(body) < cfg.min_contrast:
-                continue  # the cloth has the body's colour: the two cannot be told apart here
-            for r in range(edge_row, -1 if step < 0 else R, step):
-                i = index[r, c]
-                if i < 0 or not layer_seen[i]:
-                    continue
-                if abs(lpos[i, 2] - lpos[e, 2]) > cfg.depth:
-                    break
-                to_body = colour_distance(local[i], body, w)
-                if to_body > cfg.tolerance or to_body >= to_cloth(local[i]):
-                    break
-                out[i] = True
+            if lpos[i, 2] - lpos[e, 2] > cfg.depth:
+                break
+            to_body = colour_distance(local[i], body, w)
+            if to_body > cfg.tolerance or to_body >= to_cloth(local[i]):
+                break
+            out[i] = True
     if out.sum() > cfg.max_share * layer_seen.sum():
         return np.zeros(M, bool)
     return out

@@ -113,9 +113,9 @@ class Stage1Config(StageSettings):
     # (more than 2 px off the mask: empty air, whichever way they face) keep their learned opacity
     # instead of the row's (train/unseen_fill.py, layer_off_person)
     layer_off_person: bool = True
-    # ... and the seen layer Gaussians at the layer's edges whose colour is the body's seen just past
-    # the edge (legs under a hem, a blouse over a waistband: avatar/layer_through.py) are no colour
-    # source for the layer's unseen side
+    # ... and the seen layer Gaussians under the layer's hem whose colour is the body's seen just
+    # under it (the legs under a skirt, trousers under a coat: avatar/layer_through.py) are no
+    # colour source for the layer's unseen side
     layer_through: bool = True
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)

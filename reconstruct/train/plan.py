@@ -101,7 +101,7 @@ class Stage1Plan(StagePlan):
                 if s.layer_through:  # no colour source for the layer's unseen side
                     through = layer_through(state)
                     if through is not None and through.any():
-                        notes.append(f"{int(through.sum())} garment-layer Gaussians show the body past the layer's edge, not cloth")
+                        notes.append(f"{int(through.sum())} garment-layer Gaussians under the hem show the body, not cloth")
                         not_sources = through if not_sources is None else not_sources | through
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),

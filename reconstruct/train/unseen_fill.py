@@ -96,9 +96,9 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
 
 @torch.no_grad()
 def layer_through(state: AvatarState) -> torch.Tensor | None:
-    """(N+M,) bool: the seen garment-layer Gaussians that show the body behind them past the layer's
-    edges (``avatar.layer_through``), from the painted seen flags and the canonical colours; None
-    without a layer."""
+    """(N+M,) bool: the seen garment-layer Gaussians under its hem that show the body behind them
+    (``avatar.layer_through``), from the painted seen flags and the canonical colours; None without
+    a layer."""
     model = state.model
     flags = model_layer_shows_body(model, state.edits.paint(state.seen).cpu().bool(),
                                    model.canonical(None).colors.detach().cpu())
