@@ -173,15 +173,15 @@ def _local_median(colors: np.ndarray, seen: np.ndarray, index: np.ndarray, h: in
 
 def model_layer_shows_body(model, seen, colors, config: ThroughConfig = ThroughConfig()) -> np.ndarray | None:
     """``layer_shows_body`` for an ``AvatarModel``: (N+M,) bool over all its Gaussians (False on the
-    body's), from the (N+M,) ``seen`` flags and canonical ``colors``; None without a layer. The cloth
-    hides the body where ``layer_cover.model_body_under_layer`` says so (the layer's current
-    opacities)."""
+    body's), from the (N+M,) ``seen`` flags and canonical ``colors`` (CPU arrays or tensors); None
+    without a layer. The cloth hides the body where ``layer_cover.model_body_under_layer`` says so
+    (the layer's current opacities)."""
     if model.layer is None or model.num_layer == 0:
         return None
     N = model.num_body
     pos = model.base_positions.detach().cpu().double().numpy()
-    col = np.asarray(colors.detach().cpu() if hasattr(colors, "detach") else colors, np.float64)
-    seen = np.asarray(seen.cpu() if hasattr(seen, "cpu") else seen, bool)
+    col = np.asarray(colors, np.float64)
+    seen = np.asarray(seen, bool)
     hidden = model_body_under_layer(model)[:N] >= 0
     opacity = model.opacities().detach().cpu().double().numpy()[N:]
     flags = layer_shows_body(pos[:N], model.parts()[:N], col[:N], seen[:N], hidden, pos[N:], col[N:], seen[N:],
