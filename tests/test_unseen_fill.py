@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from reconstruct.appearance.propagation import erode
+from reconstruct.appearance.propagation import erode, erode_by_part
 from reconstruct.appearance.wrap_fill import wrap_fill_colors
 from reconstruct.body.uv_map import texel_neighbours
 from reconstruct.train.unseen_fill import fill_unseen_colors
@@ -35,7 +35,7 @@ def test_unseen_gaussians_decode_to_the_fill_and_nothing_else_moves(trainer, rin
     assert 0 < int(seen.sum()) < len(seen), "the tiny run must see part of the body"
     before = _decoded(model)
     nb = texel_neighbours(model.uv_map.texel_rc, model.uv_map.resolution)
-    trusted = torch.as_tensor(erode(seen.numpy(), nb, 2))
+    trusted = torch.as_tensor(erode_by_part(seen.numpy(), nb, model.parts(), 2))
     expected = wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted, before["colors"], nb,
                                 normals=model.base_normals.cpu())
     n = fill_unseen_colors(state, keep_ring=ring)

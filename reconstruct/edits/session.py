@@ -202,13 +202,14 @@ class EditSession:
         if self.plan is not None and hasattr(self.plan, "refresh_visibility"):
             self.plan.refresh_visibility(state)
             return self.plan.pseudo_colors
-        from ..appearance.propagation import erode
+        from ..appearance.propagation import erode_by_part
         from ..appearance.wrap_fill import wrap_fill_colors
         from ..avatar.layer_cover import model_body_under_layer
 
         trusted = state.trusted_seen
         if trusted is None:
-            trusted = state.edits.paint(torch.as_tensor(erode(state.seen.numpy(), self.neighbours, self.seen_erosion)))
+            trusted = state.edits.paint(torch.as_tensor(
+                erode_by_part(state.seen.numpy(), self.neighbours, state.model.parts(), self.seen_erosion)))
         model = state.model
         return wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted.cpu(),
                                 state.canonical(None).colors.detach().cpu(), self.neighbours,

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from ..camera import Camera
-from ..appearance.propagation import erode, propagate_colors
+from ..appearance.propagation import erode_by_part, propagate_colors
 from ..appearance.wrap_fill import grazing_rule_for, wrap_fill_colors
 from ..avatar.layer_cover import model_body_under_layer
 from ..priors.propagated import build_prior
@@ -176,7 +176,8 @@ class Stage2Plan(StagePlan):
         canonical reference render, the propagated appearance."""
         model = state.model
         nb = model.neighbours()  # body texels on the UV atlas, a garment layer on its own grid
-        state.trusted_seen = torch.as_tensor(erode(state.seen.numpy(), nb, self.settings.seen_erosion))
+        state.trusted_seen = torch.as_tensor(erode_by_part(state.seen.numpy(), nb, model.parts(),
+                                                           self.settings.seen_erosion))
         self.reselect_views(state)
         canon = state.canonical(None)
         g = model.splats(canon)

@@ -41,7 +41,7 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_dilation
 
-from ..appearance.propagation import erode
+from ..appearance.propagation import erode, erode_by_part
 from ..appearance.wrap_fill import wrap_fill_colors
 from ..avatar.layer_cover import model_body_under_layer
 from ..avatar.layer_through import model_layer_shows_body
@@ -77,7 +77,7 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     sources = seen if not_sources is None else seen & ~torch.as_tensor(not_sources, dtype=torch.bool).cpu()
     if not bool(sources.any()):
         sources = seen
-    trusted = torch.as_tensor(erode(sources.numpy(), neighbours, erosion))
+    trusted = torch.as_tensor(erode_by_part(sources.numpy(), neighbours, model.parts(), erosion))
     if not bool(trusted.any()):
         trusted = sources
     colors = model.canonical(None).colors.detach().cpu()
