@@ -655,6 +655,49 @@ def test_the_model_finds_the_legs_under_its_layers_hem(layered):
     assert not flags[N:][~hem].any()
 
 
+def test_the_model_finds_layer_gaussians_painted_like_the_arm_in_front_of_them(layered):
+    """``model_layer_shows_limbs`` on the model's own Gaussians, posed in the training frames: the
+    seen layer Gaussians within 4 cm (in the image plane) of a projected arm Gaussian in frame 0,
+    painted in the sleeve's colour over grey cloth, are flagged; no other Gaussian is."""
+    from reconstruct.avatar.layer_through import LIMB_PARTS, LimbConfig, model_layer_shows_limbs
+    from reconstruct.body.parts import PART_INDEX
+
+    t = layered
+    m = t.model
+    N, M = m.num_body, m.num_layer
+    parts = m.parts()
+    sleeve, grey = np.array([0.70, 0.74, 0.83]), np.array([0.30, 0.30, 0.32])
+    arm = np.isin(parts[:N], [PART_INDEX[p] for p in LIMB_PARTS])
+    colours = np.tile(grey, (N + M, 1))
+    colours[:N][arm] = sleeve
+    front = m.base_positions[N:, 1].numpy() < m.base_positions[N:, 1].numpy().mean()
+    i = t.data.frames[0]
+    cam = t.data.targets[i].camera
+    with torch.no_grad():
+        means = t.state.posed(i).means.double().numpy().copy()
+    # the arm moved over the layer's front in the image, 5 cm nearer the camera (a hand on a skirt)
+    rows = m.layer_rc[:, 0].numpy()
+    target = means[N:][front & (rows < rows.max() // 3)].mean(0)
+    towards = cam.center - target
+    means[:N][arm] += target + 0.05 * towards / np.linalg.norm(towards) - means[:N][arm].mean(0)
+    views = [(cam, means)]
+    uv, depth = cam.project(means)
+    d = np.min(np.linalg.norm(uv[N:][:, None] - uv[:N][arm][None], axis=2), 1) * depth[N:] / cam.fx
+    painted = front & (d < 0.04)
+    assert painted.sum() >= 3, painted.sum()
+    colours[N:][painted] = sleeve
+    seen = np.ones(N + M, bool)
+    seen[N:] = front
+    with torch.no_grad():
+        m.layer_opacity.fill_(1.0)  # opaque cloth: sigmoid(gain x 1)
+    # the tiny layer has 16 columns and a coarse body: each Gaussian read alone (no row window), 3
+    # arm Gaussians in reach enough
+    flags = model_layer_shows_limbs(m, torch.as_tensor(seen), torch.as_tensor(colours), views, LimbConfig(window=0, k=3))
+    assert flags.shape == (N + M,) and not flags[:N].any()
+    assert flags[N:][painted].mean() > 0.9
+    assert not flags[N:][~painted].any()
+
+
 def test_layer_faced_training_is_the_front_of_the_tube_for_a_front_camera(layered):
     """Against an independent reference: the cosine between each posed layer normal and the
     direction to the camera, in float64, over every training frame."""

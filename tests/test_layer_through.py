@@ -147,3 +147,76 @@ def test_no_reference_within_reach_flags_nothing():
     # the body the cloth hides is no reference either
     hidden = bparts != PART_INDEX["torso"]
     assert not _flags((bp, bparts, bcol, bseen, hidden), pos, col, seen, rc).any()
+
+
+# ---- arms and hands in front of the layer (``layer_shows_limbs``) ----
+
+CLOTH = np.array([0.09, 0.16, 0.28])
+SLEEVE = np.array([0.70, 0.74, 0.83])
+
+
+def _limb_scene(rng, arm_rows=range(0, 10), sleeve_cloth=False):
+    """A front-view camera, the tube (seen on its front half), and an arm hanging beside it at the
+    tube's left front edge (x = 0.22 m), its seen Gaussians in a sleeve's colour. The photo drew the
+    arm over the layer Gaussians the arm covers in the image, in ``arm_rows``: they took the
+    sleeve's colour; the rest of the seen layer is the cloth (with noise)."""
+    from reconstruct.camera import Camera
+
+    cam = Camera.look_at((0.0, -3.0, -0.25), (0.0, 0.0, -0.25), width=256, height=256, fov_y_deg=30)
+    pos, rc = _tube()
+    seen = pos[:, 1] < -0.05
+    cloth = SLEEVE if sleeve_cloth else CLOTH
+    col = cloth + rng.uniform(-0.03, 0.03, (len(pos), 3))
+    z = rng.uniform(-0.30, 0.0, 400)
+    arm = np.c_[0.22 + rng.uniform(-0.03, 0.03, 400), -0.30 + rng.uniform(-0.03, 0.03, 400), z]
+    uv_arm, _ = cam.project(arm)
+    uv, depth = cam.project(pos)
+    dist = np.min(np.linalg.norm(uv[:, None] - uv_arm[None], axis=2), 1) * depth / cam.fx  # metres in the image
+    painted = seen & (dist < 0.02) & np.isin(rc[:, 0], list(arm_rows))
+    col[painted] = SLEEVE + rng.uniform(-0.03, 0.03, (painted.sum(), 3))
+    parts = np.full(len(arm), PART_INDEX["lowerarm.L"])
+    arm_col = SLEEVE + rng.uniform(-0.03, 0.03, (len(arm), 3))
+    return cam, pos, rc, seen, col, arm, parts, arm_col, painted
+
+
+def _limbs(cam, pos, rc, seen, col, arm, parts, arm_col, **kw):
+    from reconstruct.avatar.layer_through import layer_shows_limbs
+
+    return layer_shows_limbs([(cam, arm, pos)], parts, arm_col, np.ones(len(arm), bool), col, seen, rc, (R, C), **kw)
+
+
+def test_layer_gaussians_painted_like_an_arm_in_front_of_them_are_found():
+    rng = np.random.default_rng(0)
+    cam, pos, rc, seen, col, arm, parts, arm_col, painted = _limb_scene(rng)
+    assert painted.sum() >= 8
+    out = _limbs(cam, pos, rc, seen, col, arm, parts, arm_col)
+    assert out[painted].mean() > 0.9
+    assert not out[~painted].any()  # the cloth round the arm, and below it, is not marked
+
+
+def test_the_sleeves_colour_away_from_the_arm_is_cloth():
+    """A small light print on the cloth far from the arm in the image stays a colour source (a large
+    one, the cloth in the arm's colour, stops the rule: next test)."""
+    rng = np.random.default_rng(1)
+    cam, pos, rc, seen, col, arm, parts, arm_col, painted = _limb_scene(rng)
+    uv, depth = cam.project(pos)
+    uv_arm, _ = cam.project(arm)
+    far = seen & (np.min(np.linalg.norm(uv[:, None] - uv_arm[None], axis=2), 1) * depth / cam.fx > 0.12)
+    print_ = np.flatnonzero(far & (rc[:, 0] < 6) & (np.abs(pos[:, 0]) < 0.08))[:6]  # a small light print
+    assert len(print_) == 6
+    col[print_] = SLEEVE
+    out = _limbs(cam, pos, rc, seen, col, arm, parts, arm_col)
+    assert not out[print_].any() and out[painted].mean() > 0.9
+
+
+def test_no_limb_marks_when_the_cloth_is_the_sleeves_colour_or_too_many():
+    rng = np.random.default_rng(2)
+    cam, pos, rc, seen, col, arm, parts, arm_col, _ = _limb_scene(rng, sleeve_cloth=True)
+    assert not _limbs(cam, pos, rc, seen, col, arm, parts, arm_col).any()
+    cam, pos, rc, seen, col, arm, parts, arm_col, painted = _limb_scene(rng)
+    from reconstruct.avatar.layer_through import LimbConfig
+
+    share = painted.sum() / seen.sum()
+    assert not _limbs(cam, pos, rc, seen, col, arm, parts, arm_col, config=LimbConfig(max_share=0.5 * share)).any()
+    # and an arm out of reach (far to the side) marks nothing
+    assert not _limbs(cam, pos, rc, seen, col, arm + [0.5, 0, 0], parts, arm_col).any()

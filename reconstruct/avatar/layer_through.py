@@ -32,6 +32,17 @@ has the body's colour somewhere inside (a skin-toned skirt, a print) the two can
 and that column is left alone; when more than ``max_share`` of the seen layer would be flagged,
 none is.
 
+Arms and hands (``layer_shows_limbs``). Where an arm hangs beside the cloth or a hand rests on it, the
+photo draws the arm over the layer's Gaussians; a fitted arm a few centimetres off the photo's
+leaves the layer to draw it, opaque in the sleeve's or the hand's colour. On the long-skirt photo
+(a skirt stretched sideways past the arms) such Gaussians, carried round at their heights, laid
+light bands across the skirt's back. In each training frame (up to 8) the seen arm and hand
+Gaussians are projected; a seen opaque layer Gaussian with at least ``k`` of them within ``reach``
+in the image plane (at its own depth: the fitted arm is rarely at the layer's depth), whose colour
+(the row's local median) is within ``tolerance`` of their median colour and nearer to it than to the
+cloth's (the seen layer away from every arm), shows the arm. Nothing is marked where the cloth has
+the arm's colour (``min_contrast``), or when more than ``max_share`` of the seen layer would be.
+
 Use. Stage I's finish (``train/plan.py``, ``Stage1Config.layer_through``) takes them out of the
 colour sources of the layer's unseen side. Their opacity, and the opacity fill, are left as they
 are (counted as empty air in the fill, the open jacket photo's back came out shorter, over the
@@ -49,6 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..body.parts import PART_INDEX
 from .layer_clearance import covered_ids
 from .layer_cover import model_body_under_layer
 
@@ -138,6 +150,74 @@ def layer_shows_body(body_positions: np.ndarray, body_parts: np.ndarray, body_co
     return out
 
 
+@dataclass(frozen=True)
+class LimbConfig:
+    reach: float = 0.05  # metres in the image plane (at the layer Gaussian's depth) to the nearest seen arm or hand Gaussian
+    tolerance: float = 0.12  # as ``ThroughConfig.tolerance``, to the arm's colour there
+    min_contrast: float = 0.08  # as ``ThroughConfig.min_contrast``
+    luminance_weight: float = 0.5
+    k: int = 8  # fewest arm Gaussians within reach, and fewest cloth colours
+    max_share: float = 0.2  # more than this share of the seen layer flagged: none is
+    cloth_share: float = 0.05
+    min_opacity: float = 0.5
+    window: int = 2
+
+
+LIMB_PARTS = ("upperarm.L", "lowerarm.L", "hand.L", "upperarm.R", "lowerarm.R", "hand.R")
+
+
+def layer_shows_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, body_seen: np.ndarray,
+                      layer_colors: np.ndarray, layer_seen: np.ndarray, layer_rc: np.ndarray,
+                      grid_shape: tuple[int, int], layer_opacity: np.ndarray | None = None,
+                      config: LimbConfig = LimbConfig()) -> np.ndarray:
+    """(M,) bool over the layer's Gaussians: the seen ones that show an arm or a hand, not cloth
+    (module docstring, "Arms and hands"). ``views``: (camera, body_means (N,3), layer_means (M,3))
+    of the training frames, posed; the rest as ``layer_shows_body``."""
+    cfg = config
+    M = len(layer_colors)
+    out = np.zeros(M, bool)
+    layer_seen = np.asarray(layer_seen, bool)
+    if layer_opacity is not None:
+        layer_seen = layer_seen & (np.asarray(layer_opacity, np.float64) >= cfg.min_opacity)
+    limbs = np.flatnonzero(np.isin(np.asarray(body_parts), [PART_INDEX[p] for p in LIMB_PARTS])
+                           & np.asarray(body_seen, bool))
+    if M == 0 or layer_seen.sum() < cfg.k or len(limbs) < cfg.k:
+        return out
+    R, C = grid_shape
+    rc = np.asarray(layer_rc, np.int64)
+    index = np.full((R, C), -1, np.int64)
+    index[rc[:, 0], rc[:, 1]] = np.arange(M)
+    w = cfg.luminance_weight
+    local = _local_median(np.asarray(layer_colors, np.float64), layer_seen, index, cfg.window)
+    bcol = np.asarray(body_colors, np.float64)[limbs]
+    cand = np.flatnonzero(layer_seen)
+    arm = np.full((len(cand), 3), np.nan)  # the arm's colour round each seen layer Gaussian, in some view
+    for camera, body_means, layer_means in views:
+        buv, bz = camera.project(np.asarray(body_means, np.float64)[limbs])
+        front = bz > 0
+        if front.sum() < cfg.k:
+            continue
+        tree = cKDTree(buv[front])
+        luv, lz = camera.project(np.asarray(layer_means, np.float64)[cand])
+        todo = np.flatnonzero((lz > 0) & np.isnan(arm[:, 0]))
+        radius = cfg.reach * camera.fx / lz[todo]  # pixels
+        for j, near in zip(todo, tree.query_ball_point(luv[todo], radius)):
+            if len(near) >= cfg.k:
+                arm[j] = np.median(bcol[front][near], axis=0)
+    by_arm = np.isfinite(arm[:, 0])
+    if not by_arm.any() or (~by_arm).sum() < cfg.k:
+        return out
+    cloth = cKDTree(opponent(local[cand[~by_arm]], w))  # the cloth: seen layer away from the arms
+    k_cloth = min(int((~by_arm).sum()), max(cfg.k, int(np.ceil(cfg.cloth_share * (~by_arm).sum()))))
+    to_cloth = lambda colour: cloth.query(opponent(colour, w), k=k_cloth)[0][..., -1]  # noqa: E731
+    j = np.flatnonzero(by_arm)
+    to_arm = colour_distance(local[cand[j]], arm[j], w)
+    out[cand[j]] = (to_cloth(arm[j]) >= cfg.min_contrast) & (to_arm <= cfg.tolerance) & (to_arm < to_cloth(local[cand[j]]))
+    if out.sum() > cfg.max_share * layer_seen.sum():
+        return np.zeros(M, bool)
+    return out
+
+
 def opponent(colors: np.ndarray, luminance_weight: float = 0.5) -> np.ndarray:
     """RGB colours (..., 3) in an opponent space: (r - g, g - b, ``luminance_weight`` times the mean
     brightness)."""
@@ -187,5 +267,23 @@ def model_layer_shows_body(model, seen, colors, config: ThroughConfig = ThroughC
     flags = layer_shows_body(pos[:N], model.parts()[:N], col[:N], seen[:N], hidden, pos[N:], col[N:], seen[N:],
                              model.layer_rc.cpu().numpy(), model.layer.grid_shape, opacity, config)
     out = np.zeros(len(pos), bool)
+    out[N:] = flags
+    return out
+
+
+def model_layer_shows_limbs(model, seen, colors, views, config: LimbConfig = LimbConfig()) -> np.ndarray | None:
+    """``layer_shows_limbs`` for an ``AvatarModel``: (N+M,) bool (False on the body's) from the
+    (N+M,) ``seen`` flags and canonical ``colors``; ``views``: (camera, posed means (N+M,3)) of the
+    training frames. None without a layer."""
+    if model.layer is None or model.num_layer == 0:
+        return None
+    N = model.num_body
+    col = np.asarray(colors, np.float64)
+    seen = np.asarray(seen, bool)
+    opacity = model.opacities().detach().cpu().double().numpy()[N:]
+    split = [(cam, np.asarray(means)[:N], np.asarray(means)[N:]) for cam, means in views]
+    flags = layer_shows_limbs(split, model.parts()[:N], col[:N], seen[:N], col[N:], seen[N:],
+                              model.layer_rc.cpu().numpy(), model.layer.grid_shape, opacity, config)
+    out = np.zeros(len(col), bool)
     out[N:] = flags
     return out

@@ -43,8 +43,9 @@ from scipy.ndimage import binary_dilation
 
 from ..appearance.propagation import erode, erode_by_part
 from ..appearance.wrap_fill import wrap_fill_colors
+from ..avatar.garment_layer import spread_frames
 from ..avatar.layer_cover import model_body_under_layer
-from ..avatar.layer_through import model_layer_shows_body
+from ..avatar.layer_through import model_layer_shows_body, model_layer_shows_limbs
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
@@ -95,14 +96,24 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
 
 
 @torch.no_grad()
-def layer_through(state: AvatarState) -> torch.Tensor | None:
-    """(N+M,) bool: the seen garment-layer Gaussians under its hem that show the body behind them
-    (``avatar.layer_through``), from the painted seen flags and the canonical colours; None without
-    a layer."""
+def layer_through(state: AvatarState, data: TrainingData | None = None, max_frames: int = 8) -> torch.Tensor | None:
+    """(N+M,) bool: the seen garment-layer Gaussians that show the body, not cloth
+    (``avatar.layer_through``): under its hem, and, given the training ``data``, in front of an arm
+    or a hand in up to ``max_frames`` of its frames; from the painted seen flags and the canonical
+    colours. None without a layer."""
     model = state.model
-    flags = model_layer_shows_body(model, state.edits.paint(state.seen).cpu().bool(),
-                                   model.canonical(None).colors.detach().cpu())
-    return None if flags is None else torch.as_tensor(flags)
+    seen = state.edits.paint(state.seen).cpu().bool()
+    colors = model.canonical(None).colors.detach().cpu()
+    flags = model_layer_shows_body(model, seen, colors)
+    if flags is None:
+        return None
+    if data is not None and len(data.frames):
+        views = []
+        with torch.no_grad():
+            for i in spread_frames(list(data.frames), max_frames):
+                views.append((data.targets[i].camera, state.posed(i).means.detach().cpu().double().numpy()))
+        flags = flags | model_layer_shows_limbs(model, seen, colors, views)
+    return torch.as_tensor(flags)
 
 
 # layer opacities are set this far inside (0, 1) so that their logits stay finite
