@@ -223,3 +223,49 @@ def test_texture_space_pseudo_colour_term(stage1):
     out = s2.step()
     assert out["step_kind"] in ("canonical", "observation")
     assert out["pseudo_color"] == pytest.approx(expect, rel=1e-3, abs=1e-7)
+
+
+def test_pseudo_appearance_reads_stage1s_colour_sources(stage1):
+    """Stage II carries colours from the sources of Stage I's fill (``AvatarState.colour_sources``):
+    a trusted Gaussian Stage I took out of them is carried nowhere and keeps its own colour; with
+    the flags unset (runs from before them) every trusted Gaussian is a source."""
+    from reconstruct.body.parts import PART_INDEX
+
+    state = stage1.state
+    assert state.colour_sources is not None and state.colour_sources.shape == state.seen.shape
+    s2 = _start(stage1, _cfg())
+    plan, model = s2.plan, s2.state.model
+    nb = model.neighbours()
+    trusted = state.trusted_seen.clone()
+    torso = torch.as_tensor(model.parts() == PART_INDEX["torso"])
+    red = trusted & torso
+    assert int(red.sum()) > 20 and bool((torso & ~trusted).any())
+    colors = torch.full((model.num_gaussians, 3), 0.5)
+    colors[red] = torch.tensor([1.0, 0.0, 0.0])
+    state.colour_sources = None
+    before = plan.propagated_colors(model, state, colors, nb)
+    assert float(before[torso & ~trusted, 0].max()) > 0.9  # the red torso carried round
+    state.colour_sources = ~red
+    after = plan.propagated_colors(model, state, colors, nb)
+    assert torch.allclose(after[red], colors[red])  # kept, not repainted
+    unseen_torso = torso & ~trusted
+    assert float((after[unseen_torso] - 0.5).abs().max()) < 1e-6  # and carried nowhere
+
+
+def test_colour_sources_round_trip_through_the_state_dict(stage1):
+    from reconstruct.avatar.state import AvatarState
+
+    state = stage1.state
+    flags = torch.zeros_like(state.seen)
+    flags[::3] = True
+    state.colour_sources = flags
+    d = state.state_dict()
+    other = AvatarState(state.body, state.model, state.poses)
+    other.load_state_dict(d)
+    assert torch.equal(other.colour_sources, flags)
+    d.pop("colour_sources")  # a checkpoint from before the flags: every seen Gaussian is a source
+    other.load_state_dict(d)
+    assert other.colour_sources is None and torch.equal(other.source_flags(), state.seen)
+    d["colour_sources"] = flags[:-1]
+    with pytest.raises(ValueError, match="colour_sources has shape"):
+        other.load_state_dict(d)

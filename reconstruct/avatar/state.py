@@ -22,6 +22,7 @@ import dataclasses
 import numpy as np
 import torch
 
+from ..appearance.propagation import erode_by_part
 from ..body.base import BodyModel
 from ..body.lbs import apply_normals
 from ..body.pose import BodyPose
@@ -50,6 +51,10 @@ class AvatarState:
         self.pose_delta = torch.nn.Parameter(torch.zeros(len(self.poses), J + 2, 3, dtype=torch.float64))
         self.seen = torch.zeros(model.num_gaussians, dtype=torch.bool)
         self._trusted_seen: torch.Tensor | None = None  # Stage II's flags as computed (unpainted)
+        # the seen Gaussians whose colours the fills may carry to the unseen ones (Stage I's finish:
+        # not those seen by their blend weight alone, nor layer Gaussians that show the body); None:
+        # all seen ones (runs from before it)
+        self.colour_sources: torch.Tensor | None = None
         self.edits = EditList((), model.num_gaussians)
         self._transforms: dict[int, torch.Tensor] = {}
         self._articulations: dict[int, torch.Tensor] = {}
@@ -120,6 +125,18 @@ class AvatarState:
     @trusted_seen.setter
     def trusted_seen(self, flags: torch.Tensor | None) -> None:
         self._trusted_seen = flags
+
+    def source_flags(self) -> torch.Tensor:
+        """(N,) bool, not painted: the seen flags less those Stage I's finish took out of the colour
+        sources (``colour_sources``); the seen flags when it set none."""
+        return self.seen if self.colour_sources is None else self.seen & self.colour_sources
+
+    def trusted_sources(self, neighbours: np.ndarray, erosion: int) -> torch.Tensor:
+        """(N,) bool with the painted overrides: the Gaussians whose colours Stage II's
+        pseudo-appearance and the editor carry to the others -- ``source_flags`` eroded by ``erosion``
+        texels as the trusted flags are (``erode_by_part``), like the sources of Stage I's fill."""
+        flags = erode_by_part(self.source_flags().cpu().numpy(), neighbours, self.model.parts(), erosion)
+        return self.edits.paint(torch.as_tensor(flags))
 
     # ----- Gaussians ------------------------------------------------------------------------
     def decode(self, frame: int | None = None, pose: BodyPose | None = None, index: torch.Tensor | None = None
@@ -201,6 +218,7 @@ class AvatarState:
             f.pose_delta = torch.nn.Parameter(self.pose_delta.detach().clone(), requires_grad=False)
         f.seen = self.seen.clone()
         f._trusted_seen = None if self._trusted_seen is None else self._trusted_seen.clone()
+        f.colour_sources = None if self.colour_sources is None else self.colour_sources.clone()
         f.edits = self.edits  # immutable
         f._transforms = dict(self._transforms)
         f._articulations = dict(self._articulations)
@@ -212,7 +230,8 @@ class AvatarState:
         with it before loading, ``Trainer.load_state_dict``)."""
         out = {"model": self.model.state_dict(), "pose_delta": self.pose_delta.detach().clone(),
                "seen": self.seen.clone(),
-               "trusted_seen": None if self._trusted_seen is None else self._trusted_seen.clone()}
+               "trusted_seen": None if self._trusted_seen is None else self._trusted_seen.clone(),
+               "colour_sources": None if self.colour_sources is None else self.colour_sources.clone()}
         if self.model.layer is not None:
             out["garment_layer"] = self.model.layer.to_state()
         return out
@@ -236,6 +255,11 @@ class AvatarState:
         self.seen = state["seen"].clone()
         ts = state.get("trusted_seen")
         self._trusted_seen = None if ts is None else ts.clone()
+        cs = state.get("colour_sources")  # absent in checkpoints from before it: all seen ones
+        if cs is not None and tuple(cs.shape) != tuple(self.seen.shape):
+            raise ValueError(f"the avatar state's colour_sources has shape {tuple(cs.shape)}; "
+                             f"its seen flags have {tuple(self.seen.shape)}")
+        self.colour_sources = None if cs is None else cs.clone().bool()
 
     def replace_model(self, model: AvatarModel) -> None:
         """Train ``model`` from now on (a model with a different garment layer, before a checkpoint
@@ -243,6 +267,7 @@ class AvatarState:
         self.model = model
         self.seen = torch.zeros(model.num_gaussians, dtype=torch.bool)
         self._trusted_seen = None
+        self.colour_sources = None
         self.edits = EditList((), model.num_gaussians)
 
     @torch.no_grad()

@@ -210,12 +210,15 @@ class EditSession:
         if trusted is None:
             trusted = state.edits.paint(torch.as_tensor(
                 erode_by_part(state.seen.numpy(), self.neighbours, state.model.parts(), self.seen_erosion)))
+        # the sources of Stage I's fill; trusted Gaussians that are none keep their colour
+        sources = trusted if state.colour_sources is None else state.trusted_sources(self.neighbours, self.seen_erosion)
         model = state.model
-        return wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted.cpu(),
-                                state.canonical(None).colors.detach().cpu(), self.neighbours,
-                                normals=model.base_normals.cpu() if self.grazing_rule else None,
-                                no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
-                                layer_grid=model.layer_grid())
+        colors = state.canonical(None).colors.detach().cpu()
+        out = wrap_fill_colors(model.base_positions.cpu(), model.parts(), sources.cpu(), colors, self.neighbours,
+                               normals=model.base_normals.cpu() if self.grazing_rule else None,
+                               no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
+                               layer_grid=model.layer_grid())
+        return torch.where((trusted.cpu() & ~sources.cpu())[:, None], colors.clamp(0, 1), out)
 
     def undo(self) -> EditEntry | None:
         """Removes the last edit (kept for ``redo``); None when there is none."""

@@ -185,8 +185,7 @@ class Stage2Plan(StagePlan):
         front = Camera.orbit(0.0, 0.0, self.view_config().distance, target, width=512, height=512, fov_y_deg=30.0)
         cam = framed_camera(front, g.means, self.settings.prior_size)
         self.canonical_reference = render_avatar(g, cam, self.guidance_background, normals=False).rgb.clamp(0, 1)
-        self.pseudo_colors = self.propagated_colors(model, state.trusted_seen, canon.colors, nb,
-                                                    no_mirror=state.edits.redone).to(state.device)
+        self.pseudo_colors = self.propagated_colors(model, state, canon.colors, nb).to(state.device)
         self.visibility_key = state.edits.visibility_key()
         if self.sds_note:
             print(self.sds_note, file=sys.stderr)
@@ -198,8 +197,7 @@ class Stage2Plan(StagePlan):
         model = state.model
         self.reselect_views(state)
         nb = model.neighbours()  # body texels on the UV atlas, a garment layer on its own grid
-        self.pseudo_colors = self.propagated_colors(model, state.trusted_seen, state.canonical(None).colors,
-                                                    nb, no_mirror=state.edits.redone).to(state.device)
+        self.pseudo_colors = self.propagated_colors(model, state, state.canonical(None).colors, nb).to(state.device)
         self.visibility_key = state.edits.visibility_key()
 
     def sync_visibility(self, state: AvatarState) -> bool:
@@ -210,18 +208,26 @@ class Stage2Plan(StagePlan):
         self.refresh_visibility(state)
         return True
 
-    def propagated_colors(self, model, seen: torch.Tensor, colors: torch.Tensor, neighbours: np.ndarray,
-                          no_mirror: np.ndarray | None = None) -> torch.Tensor:
+    def propagated_colors(self, model, state: AvatarState, colors: torch.Tensor, neighbours: np.ndarray) -> torch.Tensor:
         """The built-in prior's pseudo-appearance: the unseen Gaussians' colours carried from the
         seen ones (``propagation``: ``wrap``, the wrap-around fill of wrap_fill.py, or ``diffusion``,
-        the earlier screened harmonic fill with mirrored colours). ``no_mirror``: Gaussians the
-        wrap fill gives its low-frequency fill only (regions under a redo)."""
+        the earlier screened harmonic fill with mirrored colours). The sources are those of Stage I's
+        fill (``AvatarState.trusted_sources``: not the Gaussians seen by their blend weight alone, nor
+        layer Gaussians that show the body); trusted Gaussians that are no source keep their own
+        colour. Regions under a redo take the wrap fill's low-frequency fill only."""
         colors = colors.detach().cpu()
+        trusted = state.trusted_seen.cpu()
+        sources = trusted if state.colour_sources is None else \
+            state.trusted_sources(neighbours, self.settings.seen_erosion).cpu()
         if self.settings.propagation == "diffusion":
-            return propagate_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours)
-        return wrap_fill_colors(model.base_positions.cpu(), model.parts(), seen.cpu(), colors, neighbours,
-                                normals=model.base_normals.cpu() if self.grazing_rule else None, no_mirror=no_mirror,
-                                under_layer=model_body_under_layer(model), layer_grid=model.layer_grid())
+            out = propagate_colors(model.base_positions.cpu(), model.parts(), sources, colors, neighbours)
+        else:
+            out = wrap_fill_colors(model.base_positions.cpu(), model.parts(), sources, colors, neighbours,
+                                   normals=model.base_normals.cpu() if self.grazing_rule else None,
+                                   no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
+                                   layer_grid=model.layer_grid())
+        keep = (trusted & ~sources)[:, None]
+        return torch.where(keep, colors.clamp(0, 1).to(out.dtype), out)
 
     def reference_image(self, trainer: Trainer, frame: int | None) -> torch.Tensor:
         if frame is None:

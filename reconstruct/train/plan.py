@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+import torch
 
 from .config import Stage1Config, StageSettings
 from ..appearance.wrap_fill import grazing_rule_for
@@ -106,6 +107,9 @@ class Stage1Plan(StagePlan):
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
                                    not_sources=not_sources)
+            # Stage II's pseudo-appearance and the editor carry colours from the same sources
+            # (``AvatarState.source_flags``)
+            state.colour_sources = None if not_sources is None else ~torch.as_tensor(not_sources).cpu().bool()
             if n:
                 notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
             if n_layer:
