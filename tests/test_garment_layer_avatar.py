@@ -659,7 +659,7 @@ def test_the_model_finds_layer_gaussians_painted_like_the_arm_in_front_of_them(l
     """``model_layer_shows_limbs`` on the model's own Gaussians, posed in the training frames: the
     seen layer Gaussians within 4 cm (in the image plane) of a projected arm Gaussian in frame 0,
     painted in the sleeve's colour over grey cloth, are flagged; no other Gaussian is."""
-    from reconstruct.avatar.layer_through import LIMB_PARTS, LimbConfig, model_layer_shows_limbs
+    from reconstruct.avatar.layer_through import ARM_PARTS, LimbConfig, model_layer_shows_limbs
     from reconstruct.body.parts import PART_INDEX
 
     t = layered
@@ -667,7 +667,7 @@ def test_the_model_finds_layer_gaussians_painted_like_the_arm_in_front_of_them(l
     N, M = m.num_body, m.num_layer
     parts = m.parts()
     sleeve, grey = np.array([0.70, 0.74, 0.83]), np.array([0.30, 0.30, 0.32])
-    arm = np.isin(parts[:N], [PART_INDEX[p] for p in LIMB_PARTS])
+    arm = np.isin(parts[:N], [PART_INDEX[p] for p in ARM_PARTS])
     colours = np.tile(grey, (N + M, 1))
     colours[:N][arm] = sleeve
     front = m.base_positions[N:, 1].numpy() < m.base_positions[N:, 1].numpy().mean()

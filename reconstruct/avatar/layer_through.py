@@ -163,7 +163,7 @@ class LimbConfig:
     window: int = 2
 
 
-LIMB_PARTS = ("upperarm.L", "lowerarm.L", "hand.L", "upperarm.R", "lowerarm.R", "hand.R")
+ARM_PARTS = ("upperarm.L", "lowerarm.L", "hand.L", "upperarm.R", "lowerarm.R", "hand.R")
 
 
 def layer_shows_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, body_seen: np.ndarray,
@@ -179,9 +179,9 @@ def layer_shows_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, bo
     layer_seen = np.asarray(layer_seen, bool)
     if layer_opacity is not None:
         layer_seen = layer_seen & (np.asarray(layer_opacity, np.float64) >= cfg.min_opacity)
-    limbs = np.flatnonzero(np.isin(np.asarray(body_parts), [PART_INDEX[p] for p in LIMB_PARTS])
+    arms = np.flatnonzero(np.isin(np.asarray(body_parts), [PART_INDEX[p] for p in ARM_PARTS])
                            & np.asarray(body_seen, bool))
-    if M == 0 or layer_seen.sum() < cfg.k or len(limbs) < cfg.k:
+    if M == 0 or layer_seen.sum() < cfg.k or len(arms) < cfg.k:
         return out
     R, C = grid_shape
     rc = np.asarray(layer_rc, np.int64)
@@ -189,11 +189,11 @@ def layer_shows_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, bo
     index[rc[:, 0], rc[:, 1]] = np.arange(M)
     w = cfg.luminance_weight
     local = _local_median(np.asarray(layer_colors, np.float64), layer_seen, index, cfg.window)
-    bcol = np.asarray(body_colors, np.float64)[limbs]
+    bcol = np.asarray(body_colors, np.float64)[arms]
     cand = np.flatnonzero(layer_seen)
     arm = np.full((len(cand), 3), np.nan)  # the arm's colour round each seen layer Gaussian, in some view
     for camera, body_means, layer_means in views:
-        buv, bz = camera.project(np.asarray(body_means, np.float64)[limbs])
+        buv, bz = camera.project(np.asarray(body_means, np.float64)[arms])
         front = bz > 0
         if front.sum() < cfg.k:
             continue

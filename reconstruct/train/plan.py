@@ -102,7 +102,8 @@ class Stage1Plan(StagePlan):
                 if s.layer_through:  # no colour source for the layer's unseen side
                     through = layer_through(state, context.data)
                     if through is not None and through.any():
-                        notes.append(f"{int(through.sum())} garment-layer Gaussians show the body (under the hem, or an arm in front of the cloth), not cloth")
+                        notes.append(f"{int(through.sum())} garment-layer Gaussians show the body (under the hem, "
+                                     "or an arm in front of the cloth), not cloth")
                         not_sources = through if not_sources is None else not_sources | through
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
