@@ -228,6 +228,23 @@ def test_front_only_head_back_and_crown_take_the_hair():
     assert np.linalg.norm(off[low_back] - SKIN, axis=1).mean() < 0.05
 
 
+def test_front_only_head_reads_its_hair_from_the_less_eroded_flags():
+    """The hair framing a face in a photo is a ring the fill's erosion takes: with the trusted flags
+    holding none of it the rule finds no hair and the back at face height takes the face's skin;
+    given ``hair_seen`` (the flags eroded less), the hair is read there and the back is hair."""
+    pos, th, seen, truth = front_only_head()
+    parts = np.full(len(pos), PART_INDEX["head"])
+    col = np.where(seen[:, None], truth, 0.5)
+    trusted = seen & (pos[:, 2] < 1.70)  # the hair above the face eroded away
+    low_back = ~seen & (pos[:, 2] < 1.68)
+    without = wrap_fill_colors(pos, parts, trusted, col, None).numpy()
+    assert np.linalg.norm(without[low_back] - SKIN, axis=1).mean() < 0.05
+    with_ring = wrap_fill_colors(pos, parts, trusted, col, None, hair_seen=seen).numpy()
+    assert np.linalg.norm(with_ring[low_back] - HAIR, axis=1).max() < 0.05
+    # the trusted Gaussians keep their colours; the hair ring is filled like any untrusted one
+    np.testing.assert_allclose(with_ring[trusted], col[trusted].astype(np.float32), atol=1e-6)
+
+
 def test_front_only_head_band_is_behind_the_centre_not_the_face_sides():
     # a bent head (the sweater photo): at face height the seen region stops at the cheeks, 35
     # degrees short of the sides, while the hair is seen round to the sides above. The unseen

@@ -215,7 +215,8 @@ def reliable_seen(seen: np.ndarray, normals: np.ndarray | None, parts: np.ndarra
 
 def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | None = None,
                      config: WrapFillConfig = WrapFillConfig(), normals=None, no_mirror=None,
-                     under_layer=None, layer_grid: tuple[int, int, int] | None = None) -> torch.Tensor:
+                     under_layer=None, layer_grid: tuple[int, int, int] | None = None,
+                     hair_seen=None) -> torch.Tensor:
     """(N,3) float32 colours: the reliably seen Gaussians' own, the others (unseen, or seen only
     at grazing incidence when ``normals`` are given) filled as described in the module docstring.
     ``positions``, ``normals``: canonical (N,3); ``parts``: (N,) body-part indices; ``seen``: (N,)
@@ -228,13 +229,18 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     (an offset or a pose bringing the body through it, the gaps between its Gaussians) is the cloth.
     ``layer_grid``: (rows, cols, tubes) of a garment layer whose Gaussians are the part
     ``GARMENT_PART``, row-major: a pattern repeating round its tube is carried on round the unseen
-    side by whole periods (``periodic_fill``) instead of mirrored, and kept out of the smoothing."""
+    side by whole periods (``periodic_fill``) instead of mirrored, and kept out of the smoothing.
+    ``hair_seen``: (N,) bool, seen flags eroded less than ``seen`` (1 texel against 2): a head seen
+    from the front only reads its hair on them (``hair.py``). The hair framing a face is a ring a
+    few texels wide, and erosion took most of it (the red-dress photo's hair rule stood down and the
+    back of her head came out bald)."""
     cfg = config
     no_mirror = None if no_mirror is None else _as_np(no_mirror, bool)
     pos = _as_np(positions)
     col = _as_np(colors)
     parts = np.asarray(parts)
     seen = reliable_seen(_as_np(seen, bool), None if normals is None else _as_np(normals), parts, cfg)
+    hair_seen = None if hair_seen is None else _as_np(hair_seen, bool) | seen
     out = col.copy()
     unseen_all = np.flatnonzero(~seen)
     if len(unseen_all) == 0 or not seen.any():
@@ -318,14 +324,19 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                     band_pos, band_col = band_pos[~skin], band_col[~skin]
             else:
                 centre = np.array([pos[members, i].mean() for i in range(3)])
-                hair = hair_sources(src_pos, col[src], centre[0], contrast=cfg.hair_contrast,
+                # the hair is read on the rim of the seen head: from ``hair_seen`` when given (the
+                # flags eroded less; a ring of hair round a face is a strip, as a limb is)
+                hsrc = src if hair_seen is None else members[hair_seen[members]]
+                if len(hsrc) < cfg.k:
+                    hsrc = src
+                hair = hair_sources(pos[hsrc], col[hsrc], centre[0], contrast=cfg.hair_contrast,
                                     min_share=cfg.hair_min_share, k=cfg.k)
                 if hair.any():
-                    covered = hair_covered(pos[todo], src_pos, hair, centre)
+                    covered = hair_covered(pos[todo], pos[hsrc], hair, centre)
         # 2. low-frequency fill along the wrap direction (same height)
         low = _same_height_median(pos[todo], band_pos, band_col, cfg)
         if covered is not None and covered.any():
-            low[covered] = _same_height_median(pos[todo][covered], src_pos[hair], col[src][hair], cfg)
+            low[covered] = _same_height_median(pos[todo][covered], pos[hsrc][hair], col[hsrc][hair], cfg)
         # 3. the mirrored colour, kept where the band shows that colour at a nearby height
         query = pos[todo].copy()
         query[:, 1] = 2 * centre_y - query[:, 1]

@@ -217,7 +217,8 @@ class EditSession:
         out = wrap_fill_colors(model.base_positions.cpu(), model.parts(), sources.cpu(), colors, self.neighbours,
                                normals=model.base_normals.cpu() if self.grazing_rule else None,
                                no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
-                               layer_grid=model.layer_grid())
+                               layer_grid=model.layer_grid(),
+                               hair_seen=state.trusted_sources(self.neighbours, min(self.seen_erosion, 1)))
         return torch.where((trusted.cpu() & ~sources.cpu())[:, None], colors.clamp(0, 1), out)
 
     def undo(self) -> EditEntry | None:

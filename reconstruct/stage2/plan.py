@@ -225,7 +225,8 @@ class Stage2Plan(StagePlan):
             out = wrap_fill_colors(model.base_positions.cpu(), model.parts(), sources, colors, neighbours,
                                    normals=model.base_normals.cpu() if self.grazing_rule else None,
                                    no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
-                                   layer_grid=model.layer_grid())
+                                   layer_grid=model.layer_grid(),
+                                   hair_seen=state.trusted_sources(neighbours, min(self.settings.seen_erosion, 1)))
         keep = (trusted & ~sources)[:, None]
         return torch.where(keep, colors.clamp(0, 1).to(out.dtype), out)
 
