@@ -254,12 +254,12 @@ def test_a_redone_region_takes_no_mirrored_colour(trained, monkeypatch):
     """What a redo resets to is the wrap fill's low-frequency part: the plan's propagated colours
     are made with the redone Gaussians marked no_mirror (what no_mirror does to the fill:
     tests/test_propagation_wrap.py), and undo takes the mark back."""
-    from reconstruct.stage2 import plan as plan_module
+    from reconstruct.appearance import pseudo_appearance as fill_module  # the plan's propagated colours
     from reconstruct.stage2.plan import start_stage2
 
     seen_args = []
-    real = plan_module.wrap_fill_colors
-    monkeypatch.setattr(plan_module, "wrap_fill_colors",
+    real = fill_module.wrap_fill_colors
+    monkeypatch.setattr(fill_module, "wrap_fill_colors",
                         lambda *a, **kw: seen_args.append(kw.get("no_mirror")) or real(*a, **kw))
     plan = start_stage2(trained, _stage2_cfg(), allow_incomplete=True)
     assert seen_args[-1] is None

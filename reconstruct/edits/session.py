@@ -203,23 +203,14 @@ class EditSession:
             self.plan.refresh_visibility(state)
             return self.plan.pseudo_colors
         from ..appearance.propagation import erode_by_part
-        from ..appearance.wrap_fill import wrap_fill_colors
-        from ..avatar.layer_cover import model_body_under_layer
+        from ..appearance.pseudo_appearance import pseudo_appearance
 
         trusted = state.trusted_seen
         if trusted is None:
             trusted = state.edits.paint(torch.as_tensor(
                 erode_by_part(state.seen.numpy(), self.neighbours, state.model.parts(), self.seen_erosion)))
-        # the sources of Stage I's fill; trusted Gaussians that are none keep their colour
-        sources = trusted if state.colour_sources is None else state.trusted_sources(self.neighbours, self.seen_erosion)
-        model = state.model
-        colors = state.canonical(None).colors.detach().cpu()
-        out = wrap_fill_colors(model.base_positions.cpu(), model.parts(), sources.cpu(), colors, self.neighbours,
-                               normals=model.base_normals.cpu() if self.grazing_rule else None,
-                               no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
-                               layer_grid=model.layer_grid(),
-                               hair_seen=state.trusted_sources(self.neighbours, min(self.seen_erosion, 1)))
-        return torch.where((trusted.cpu() & ~sources.cpu())[:, None], colors.clamp(0, 1), out)
+        return pseudo_appearance(state, trusted, state.canonical(None).colors, self.neighbours, self.seen_erosion,
+                                 grazing_rule=self.grazing_rule)
 
     def undo(self) -> EditEntry | None:
         """Removes the last edit (kept for ``redo``); None when there is none."""

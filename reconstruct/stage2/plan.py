@@ -27,9 +27,9 @@ import numpy as np
 import torch
 
 from ..camera import Camera
-from ..appearance.propagation import erode_by_part, propagate_colors
-from ..appearance.wrap_fill import grazing_rule_for, wrap_fill_colors
-from ..avatar.layer_cover import model_body_under_layer
+from ..appearance.propagation import erode_by_part
+from ..appearance.pseudo_appearance import pseudo_appearance
+from ..appearance.wrap_fill import grazing_rule_for
 from ..priors.propagated import build_prior
 from ..train.checkpoint import STAGE1_CHECKPOINT_NAME
 from ..train.plan import StagePlan
@@ -209,26 +209,12 @@ class Stage2Plan(StagePlan):
         return True
 
     def propagated_colors(self, model, state: AvatarState, colors: torch.Tensor, neighbours: np.ndarray) -> torch.Tensor:
-        """The built-in prior's pseudo-appearance: the unseen Gaussians' colours carried from the
-        seen ones (``propagation``: ``wrap``, the wrap-around fill of wrap_fill.py, or ``diffusion``,
-        the earlier screened harmonic fill with mirrored colours). The sources are those of Stage I's
-        fill (``AvatarState.trusted_sources``: not the Gaussians seen by their blend weight alone, nor
-        layer Gaussians that show the body); trusted Gaussians that are no source keep their own
-        colour. Regions under a redo take the wrap fill's low-frequency fill only."""
-        colors = colors.detach().cpu()
-        trusted = state.trusted_seen.cpu()
-        sources = trusted if state.colour_sources is None else \
-            state.trusted_sources(neighbours, self.settings.seen_erosion).cpu()
-        if self.settings.propagation == "diffusion":
-            out = propagate_colors(model.base_positions.cpu(), model.parts(), sources, colors, neighbours)
-        else:
-            out = wrap_fill_colors(model.base_positions.cpu(), model.parts(), sources, colors, neighbours,
-                                   normals=model.base_normals.cpu() if self.grazing_rule else None,
-                                   no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
-                                   layer_grid=model.layer_grid(),
-                                   hair_seen=state.trusted_sources(neighbours, min(self.settings.seen_erosion, 1)))
-        keep = (trusted & ~sources)[:, None]
-        return torch.where(keep, colors.clamp(0, 1).to(out.dtype), out)
+        """The built-in prior's pseudo-appearance (``appearance.pseudo_appearance``): the unseen
+        Gaussians' colours carried from the sources of Stage I's fill (``propagation``: ``wrap``, the
+        wrap-around fill of wrap_fill.py, or ``diffusion``, the earlier screened harmonic fill with
+        mirrored colours)."""
+        return pseudo_appearance(state, state.trusted_seen, colors, neighbours, self.settings.seen_erosion,
+                                 grazing_rule=self.grazing_rule, propagation=self.settings.propagation)
 
     def reference_image(self, trainer: Trainer, frame: int | None) -> torch.Tensor:
         if frame is None:

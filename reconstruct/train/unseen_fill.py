@@ -109,10 +109,8 @@ def layer_through(state: AvatarState, data: TrainingData | None = None, max_fram
     if flags is None:
         return None
     if data is not None and len(data.frames):
-        views = []
-        with torch.no_grad():
-            for i in spread_frames(list(data.frames), max_frames):
-                views.append((data.targets[i].camera, state.posed(i).means.detach().cpu().double().numpy()))
+        views = [(data.targets[i].camera, state.posed(i).means.detach().cpu().double().numpy())
+                 for i in spread_frames(list(data.frames), max_frames)]
         flags = flags | model_layer_shows_limbs(model, seen, colors, views)
     return torch.as_tensor(flags)
 
