@@ -550,6 +550,35 @@ def test_untrained_layer_gaussians_take_the_trained_cloths_opacity_at_their_heig
 
 
 
+def test_finish_keeps_the_ring_of_decoded_colours_only_where_training_shaped_the_layer(layered, monkeypatch):
+    """Stage I's finish hands the fill the Gaussians whose decoded colours training shaped: every
+    body Gaussian (the ring round the seen body keeps its colours as before) and the layer's
+    Gaussians that faced a training camera or that a training ray reached from outside (read before
+    the untrained ones take the cloth's opacity). The inside of an open jacket's flap, seen from
+    within at its edge, has no outer colour of its own: it showed as light specks from behind."""
+    from reconstruct.train import plan as plan_module
+    from reconstruct.train.unseen_fill import layer_faced_training, layer_reached
+    from reconstruct.train.seen_recount import person_coverage
+
+    t = layered
+    for _ in range(3):
+        t.step()
+    s = t.plan.settings
+    calls = []
+    real = plan_module.fill_unseen_colors
+    monkeypatch.setattr(plan_module, "fill_unseen_colors", lambda state, **kw: calls.append(kw) or real(state, **kw))
+    N = t.model.num_body
+    faced = layer_faced_training(t.state, t.data)
+    cov = person_coverage(t.state, t.data, hit_threshold=s.hit_threshold, weights=True)
+    shaped = faced | layer_reached(t.state, cov.total_max, plan_module._RING_MIN_REACH)
+    t.plan.finish(t)
+    ring = calls[0]["ring_trained"]
+    assert ring.dtype == torch.bool and ring.shape == (t.model.num_gaussians,)
+    assert bool(ring[:N].all())
+    assert torch.equal(ring[N:], shaped)
+    assert 0 < int(shaped.sum()) < t.model.num_layer, "the hand-made layer must be partly untrained"
+
+
 def test_untrained_layer_opacity_has_no_ring_below_the_hem(layered):
     """Below the hem the untrained Gaussians' opacities never rise again down the rows:
     a trained row below the hem whose median is higher than the row above (the hem's columns mixed)

@@ -51,6 +51,33 @@ def test_unseen_gaussians_decode_to_the_fill_and_nothing_else_moves(trainer, rin
     assert torch.equal(after["means"], before["means"]) and torch.equal(after["scales"], before["scales"])
 
 
+def test_ring_keeps_only_the_colours_training_shaped(trainer):
+    """``ring_trained``: an unseen Gaussian of the kept ring that training never shaped (a garment
+    layer's back beside a seen edge) takes the fill's colour like the rest; the trained part of the
+    ring keeps its decoded colour bit-identically."""
+    state, model = trainer.state, trainer.model
+    seen = state.seen.clone()
+    nb = texel_neighbours(model.uv_map.texel_rc, model.uv_map.resolution)
+    trusted = torch.as_tensor(erode_by_part(seen.numpy(), nb, model.parts(), 2))
+    before = _decoded(model)
+    expected = wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted, before["colors"], nb,
+                                normals=model.base_normals.cpu())
+    ring = (~seen) & ~torch.as_tensor(erode((~seen).numpy(), nb, 1))
+    ring_ids = torch.nonzero(ring)[:, 0]
+    assert len(ring_ids) >= 4, "the tiny run must have a ring of unseen Gaussians round the seen ones"
+    untrained = torch.zeros_like(seen)
+    untrained[ring_ids[::2]] = True  # every other ring Gaussian: never shaped by training
+    n = fill_unseen_colors(state, keep_ring=1, ring_trained=~untrained)
+    after = _decoded(model)
+    todo = torch.as_tensor(erode((~seen).numpy(), nb, 1)) | untrained
+    assert n == int(todo.sum())
+    assert (after["colors"][untrained] - expected[untrained]).abs().max() < 1e-4
+    assert (before["colors"][untrained] - expected[untrained]).abs().max() > 0.02
+    kept = ring & ~untrained
+    assert torch.equal(after["colors"][kept], before["colors"][kept])
+    assert torch.equal(after["colors"][seen], before["colors"][seen])
+
+
 def test_painted_visibility_is_respected(trainer):
     from reconstruct.edits import PaintSeen
     from reconstruct.edits.session import EditSession
@@ -87,7 +114,8 @@ def test_trainer_fills_once_at_the_end_of_stage1(tiny_scene, tiny_config, tmp_pa
     # seen by their blend weight alone are not (a bool per Gaussian)
     assert t.done and len(calls) == 1
     not_sources = calls[0].pop("not_sources")
-    assert calls == [{"keep_ring": tiny_config.fill_unseen_ring, "grazing_rule": False}]
+    # the tiny scene has no garment layer: the whole ring of the body keeps its decoded colours
+    assert calls == [{"keep_ring": tiny_config.fill_unseen_ring, "grazing_rule": False, "ring_trained": None}]
     assert not_sources.dtype == torch.bool and not_sources.shape == (t.state.num_gaussians,)
     assert not (not_sources & ~t.state.seen).any()
     t.step()  # a step past the end (the studio's single step) does not fill again

@@ -17,6 +17,11 @@ from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (fill_unseen_colors, fill_unseen_layer_opacity, layer_faced_training, layer_off_person,
                           layer_reached, layer_through)
 
+# px of blend weight (over opacity, in one training frame, its surface facing the camera) from
+# which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its
+# decoded colour (docs/loose_clothing.md, "The ring round the seen cloth")
+_RING_MIN_REACH = 0.01
+
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
     from .steps import StepContext
@@ -93,11 +98,20 @@ class Stage1Plan(StagePlan):
         if s.fill_unseen:
             # the layer's opacity first: the colours of the body under the cloth follow the cloth
             # where it is opaque (``layer_cover``)
-            n_layer = 0
+            n_layer, ring_trained = 0, None
             if state.model.layer is not None:
-                trained = layer_faced_training(state, context.data)
+                faced = layer_faced_training(state, context.data)
+                trained = faced.clone()
                 if coverage is not None:
                     trained |= layer_reached(state, coverage.total_max, s.seen_min_weight)
+                    # the fill's ring keeps the decoded colours the images gave the cloth's outer
+                    # side: on the layer, those of Gaussians that faced a camera or that a training
+                    # ray reached from outside at all. One seen only from within (the inside of an
+                    # open flap at its edge) or never reached has no outer colour of its own: its
+                    # colour showed as light specks from behind. Read before the untrained ones
+                    # take the cloth's opacity
+                    shaped = faced | layer_reached(state, coverage.total_max, _RING_MIN_REACH)
+                    ring_trained = torch.cat([torch.ones(state.model.num_body, dtype=torch.bool), shaped.cpu().bool()])
                 empty = layer_off_person(state, context.data) if s.layer_off_person else None
                 if s.layer_through:  # no colour source for the layer's unseen side
                     through = layer_through(state, context.data)
@@ -107,7 +121,7 @@ class Stage1Plan(StagePlan):
                         not_sources = through if not_sources is None else not_sources | through
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
-                                   not_sources=not_sources)
+                                   not_sources=not_sources, ring_trained=ring_trained)
             # Stage II's pseudo-appearance and the editor carry colours from the same sources
             # (``AvatarState.source_flags``)
             state.colour_sources = None if not_sources is None else ~torch.as_tensor(not_sources).cpu().bool()

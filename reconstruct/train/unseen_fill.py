@@ -57,7 +57,7 @@ _COLOR_MARGIN = 1e-3
 
 @torch.no_grad()
 def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int = 0, grazing_rule: bool = True,
-                       not_sources: torch.Tensor | None = None) -> int:
+                       not_sources: torch.Tensor | None = None, ring_trained: torch.Tensor | None = None) -> int:
     """Set the colour residual of every Gaussian the painted seen flags call unseen so that it
     decodes to the wrap-around fill's colour. Returns how many Gaussians were filled (0 when the
     avatar has no colour residual, sees nothing or sees everything). ``grazing_rule``: seen
@@ -65,7 +65,9 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     for avatars trained on one fixed background, whose silhouette colours are darkened by it).
     ``not_sources``: (N,) bool, seen Gaussians that keep their colour but are no colour source
     either (those seen by their blend weight alone, ``SeenRecount.blended_only``: many sit at the
-    silhouette, where a photo's matting leaves a light fringe)."""
+    silhouette, where a photo's matting leaves a light fringe). ``ring_trained``: (N+M,) bool, the
+    Gaussians whose decoded colour the training images shaped; an unseen one of the ``keep_ring``
+    that is not among them is filled too (None: the ring keeps every decoded colour)."""
     model = state.model
     cfg = model.config
     if not cfg.color_residual:
@@ -87,6 +89,8 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
                               under_layer=model_body_under_layer(model), layer_grid=model.layer_grid(),
                               hair_seen=torch.as_tensor(erode(sources.numpy(), neighbours, min(erosion, 1))))
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
+    if ring_trained is not None:
+        todo = todo | (unseen & ~torch.as_tensor(ring_trained, dtype=torch.bool).cpu())
     idx = torch.nonzero(todo).squeeze(1)
     decoded_logit = model.decode_raw(None, None)["color"].detach().cpu()[idx]
     target = torch.logit(filled[idx].to(decoded_logit.dtype).clamp(_COLOR_MARGIN, 1 - _COLOR_MARGIN))
