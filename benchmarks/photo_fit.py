@@ -6,7 +6,9 @@ black: PSNR inside the mask (pixels with mask > 0.5, the image premultiplied by 
 training sees it), the hole share (pixels at least 2 px inside the mask, as ``eval``'s holes, with
 rendered alpha < 0.9), the alpha IoU (alpha > 0.5 against mask > 0.5) and the spill (pixels with
 alpha > 0.5 off the mask, as a share of the mask). Prints one row per run (the means over its
-frames); ``--strip DIR`` also writes, per run, an 8-view orbit strip of frame 0's pose
+frames) and how speckled its unseen side is (``back_specks``: frame 0's pose from 135, 180 and
+225 degrees, the share of the inside 0.2 brighter than the median of its 9 x 9 neighbourhood);
+``--strip DIR`` also writes, per run, an 8-view orbit strip of frame 0's pose
 (``RUN_orbit.png``, 0° = the frame's camera).
 
     python benchmarks/photo_fit.py RUN [RUN ...] [--frames 0,3] [--strip DIR] [--size 320]
@@ -49,8 +51,9 @@ def frame_fit(posed, frame) -> dict[str, float]:
             "spill": float((drawn & ~on).sum() / max(on.sum(), 1))}
 
 
-def orbit_strip(trainer, frame_index: int, size: int) -> np.ndarray:
-    """(size, 8*size, 3) uint8: frame ``frame_index``'s pose from 8 azimuths round its centre."""
+def orbit_renders(trainer, frame_index: int, size: int, azimuths) -> list:
+    """Frame ``frame_index``'s pose seen from each azimuth (degrees, 0 = the frame's camera) at the
+    camera's distance and height, looking at the Gaussians' centre: the renders on black."""
     posed = trainer.state.posed(frame_index)
     cam = trainer.scene.frames[frame_index].camera
     centre = posed.means.detach().double().numpy().mean(0)
@@ -59,14 +62,50 @@ def orbit_strip(trainer, frame_index: int, size: int) -> np.ndarray:
     dist = float(np.linalg.norm(front))
     front[2] = 0
     front /= np.linalg.norm(front)
-    tiles = []
-    for az in range(0, 360, 45):
+    out = []
+    for az in azimuths:
         a = np.radians(az)
         v = np.array([front[0] * np.cos(a) - front[1] * np.sin(a), front[0] * np.sin(a) + front[1] * np.cos(a), 0.0])
         view = Camera.look_at(centre + dist * v, centre, width=size, height=size, fov_y_deg=40)
-        img = render_avatar(posed, view, torch.zeros(3), normals=False).rgb.detach().numpy()
-        tiles.append((np.clip(img, 0, 1) * 255).astype(np.uint8))
+        out.append(render_avatar(posed, view, torch.zeros(3), normals=False))
+    return out
+
+
+def orbit_strip(trainer, frame_index: int, size: int) -> np.ndarray:
+    """(size, 8*size, 3) uint8: frame ``frame_index``'s pose from 8 azimuths round its centre."""
+    tiles = [(np.clip(r.rgb.detach().numpy(), 0, 1) * 255).astype(np.uint8)
+             for r in orbit_renders(trainer, frame_index, size, range(0, 360, 45))]
     return np.concatenate(tiles, axis=1)
+
+
+SPECK_STEP = 0.2  # a speck pixel is this much brighter (mean of RGB) than the median round it
+SPECK_WINDOW = 9  # px: the side of the square whose median it is compared with
+
+
+def speck_share(rgb: np.ndarray, alpha: np.ndarray) -> float:
+    """Share of the inside of a render (alpha > 0.99 over the whole ``SPECK_WINDOW`` square round
+    the pixel) whose brightness exceeds the median of that square by ``SPECK_STEP``: isolated light
+    dots and streaks on a surface, which a mottled or speckled back shows and a smooth one does
+    not. Edges between two flat regions are not counted (the median follows the side the pixel is
+    on)."""
+    from scipy.ndimage import minimum_filter, median_filter
+
+    lum = np.asarray(rgb, np.float64).mean(-1)
+    inside = minimum_filter(np.asarray(alpha, np.float64), size=SPECK_WINDOW) > 0.99
+    if not inside.any():
+        return float("nan")
+    bright = lum - median_filter(lum, size=SPECK_WINDOW) > SPECK_STEP
+    return float(bright[inside].mean())
+
+
+def back_specks(trainer, frame_index: int, size: int) -> float:
+    """``speck_share`` of frame ``frame_index``'s pose seen from 135, 180 and 225 degrees (pixels
+    pooled): how speckled the side no training view showed is."""
+    rows = [(r.rgb.detach().numpy(), r.alpha.detach().numpy())
+            for r in orbit_renders(trainer, frame_index, size, (135, 180, 225))]
+    rgb = np.concatenate([r for r, _ in rows], axis=1)
+    alpha = np.concatenate([a for _, a in rows], axis=1)
+    return speck_share(rgb, alpha)
 
 
 @torch.no_grad()
@@ -79,7 +118,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    print(f"{'run':<28} {'frames':>6} {'PSNR mask':>9} {'holes %':>8} {'IoU':>7} {'spill %':>8} {'layer':>6}")
+    print(f"{'run':<28} {'frames':>6} {'PSNR mask':>9} {'holes %':>8} {'IoU':>7} {'spill %':>8} {'layer':>6} "
+          f"{'back specks %':>13}")
     for run in args.runs:
         t = RunFolder(run).resume()
         frames = (range(len(t.scene.frames)) if args.frames is None
@@ -87,7 +127,8 @@ def main() -> None:
         rows = [frame_fit(t.state.posed(i), t.scene.frames[i]) for i in frames]
         mean = {k: float(np.nanmean([r[k] for r in rows])) for k in rows[0]}
         print(f"{run.name:<28} {len(rows):>6} {mean['psnr_mask']:9.2f} {100 * mean['holes']:8.2f} "
-              f"{mean['iou']:7.4f} {100 * mean['spill']:8.2f} {t.state.model.num_layer:>6}")
+              f"{mean['iou']:7.4f} {100 * mean['spill']:8.2f} {t.state.model.num_layer:>6} "
+              f"{100 * back_specks(t, 0, args.size):13.3f}")
         if args.strip is not None:
             from PIL import Image
             args.strip.mkdir(parents=True, exist_ok=True)
