@@ -76,6 +76,8 @@ def test_ring_keeps_only_the_colours_training_shaped(trainer):
     kept = ring & ~untrained
     assert torch.equal(after["colors"][kept], before["colors"][kept])
     assert torch.equal(after["colors"][seen], before["colors"][seen])
+    with pytest.raises(ValueError, match="ring_trained must have shape"):
+        fill_unseen_colors(state, keep_ring=1, ring_trained=torch.ones(len(seen) - 1, dtype=torch.bool))
 
 
 def test_painted_visibility_is_respected(trainer):

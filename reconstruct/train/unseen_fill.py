@@ -90,7 +90,11 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
                               hair_seen=torch.as_tensor(erode(sources.numpy(), neighbours, min(erosion, 1))))
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
     if ring_trained is not None:
-        todo = todo | (unseen & ~torch.as_tensor(ring_trained, dtype=torch.bool).cpu())
+        ring_trained = torch.as_tensor(ring_trained, dtype=torch.bool).cpu()
+        if tuple(ring_trained.shape) != tuple(unseen.shape):
+            raise ValueError(f"fill_unseen_colors: ring_trained must have shape {tuple(unseen.shape)} (one flag per "
+                             f"Gaussian), found {tuple(ring_trained.shape)}")
+        todo = todo | (unseen & ~ring_trained)
     idx = torch.nonzero(todo).squeeze(1)
     decoded_logit = model.decode_raw(None, None)["color"].detach().cpu()[idx]
     target = torch.logit(filled[idx].to(decoded_logit.dtype).clamp(_COLOR_MARGIN, 1 - _COLOR_MARGIN))
