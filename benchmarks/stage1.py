@@ -24,6 +24,9 @@ and the layer's cover prior (``train/layer_cover.py``; in "losses") against none
 and, on the coat scene, the layer kept clear of the posed body (``avatar/layer_clearance.py``; in
 "pose", which moves the decoded Gaussians by their LBS matrices) against not:
     python benchmarks/stage1.py --configs coat,coat-noclear --rounds 2
+and what the layer costs on the coat and the dress scenes (the chest-high layers) against the same
+scene without it:
+    python benchmarks/stage1.py --configs coat-off,coat,dress-off,dress --rounds 2
 """
 
 from __future__ import annotations
@@ -50,6 +53,9 @@ CONFIGS = {  # name -> (Stage1Config constructor, avatar overrides, the scene's 
     "loose-nocover": ("default", {}, "wide_trousers"),  # the layer without its cover prior
     "coat": ("default", {}, "coat"),  # the layer kept clear of the posed body (the default)
     "coat-noclear": ("default", {"garment_clearance": 0.0}, "coat"),
+    "coat-off": ("default", {"garment_layer": "off"}, "coat"),  # the coat scene without a layer
+    "dress": ("default", {}, "dress"),
+    "dress-off": ("default", {"garment_layer": "off"}, "dress"),
 }
 
 
