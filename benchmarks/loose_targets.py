@@ -32,6 +32,7 @@ reference machine; a budget in minutes on a shared machine is no budget. Prints 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -170,10 +171,13 @@ def _cli(*args: str) -> list[str]:
 
 
 def _run(cmd: list[str], log: Path | None = None) -> str:
+    """Runs ``cmd`` from the project root on one thread; its stdout is returned, its stderr goes to
+    ``log`` (the terminal without one)."""
     print(" ".join(cmd), file=sys.stderr)
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run(cmd, check=True, env=env, cwd=ROOT, text=True, stdout=subprocess.PIPE,
-                          stderr=None if log is None else log.open("w"))
+    with contextlib.ExitStack() as stack:
+        err = None if log is None else stack.enter_context(log.open("w"))
+        done = subprocess.run(cmd, check=True, env=env, cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=err)
     return done.stdout
 
 
