@@ -42,6 +42,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from reconstruct.atomic import atomic_output  # noqa: E402
 
 KINDS = ("skirt", "coat", "dress", "wide_trousers")
 SEEN_IOU, UNSEEN_IOU = 0.97, 0.93
@@ -183,9 +186,8 @@ def _run(cmd: list[str], log: Path | None = None) -> str:
 
 def _evaluate(run: Path, walk: bool, scale: int = 2, name: str = "eval.json") -> None:
     out = _run(_cli("eval", str(run), "--json", "--scale", str(scale), *(["--novel", "walk"] if walk else [])))
-    tmp = run / (name + ".tmp")
-    tmp.write_text(out)
-    tmp.replace(run / name)
+    with atomic_output(run / name) as tmp:
+        tmp.write_text(out)
 
 
 def train_missing(runs: Path, kinds, seeds, steps: int) -> None:
@@ -246,10 +248,8 @@ def main(argv=None) -> int:
     print(table(rows))
     print()
     print(tight_table(tight_rows))
-    out = args.runs / "targets.json"
-    tmp = out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps({"runs": rows, "tight": tight_rows}, indent=1))
-    tmp.replace(out)
+    with atomic_output(args.runs / "targets.json") as tmp:
+        tmp.write_text(json.dumps({"runs": rows, "tight": tight_rows}, indent=1))
     return 0
 
 
