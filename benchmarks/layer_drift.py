@@ -65,7 +65,7 @@ def drift(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, face_id: 
     inplane, normal = [], []
     for p, v in zip(points, vertices):
         tri = v[faces[face_id]]
-        d = p - np.einsum("gk,gkd->gd", bary, tri)
+        d = p - material_points(v, faces, face_id, bary)
         e1 = tri[:, 1] - tri[:, 0]
         nrm = np.cross(e1, tri[:, 2] - tri[:, 0])
         e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
