@@ -27,7 +27,7 @@ import torch.nn.functional as F
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from reconstruct.train.evaluate import inner_mask, upsample  # noqa: E402
+from reconstruct.train.evaluate import inner_mask, rendered_views  # noqa: E402
 
 
 def regions(mask: torch.Tensor, band: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -66,19 +66,11 @@ def split_run(run: Path, scale: int = 1, band: int = 2) -> dict[str, dict]:
     """{"seen": ..., "unseen": ...}: ``error_split`` averaged over the run's eval views, rendered as
     ``eval --scale scale`` renders them."""
     from reconstruct.run_folder import RunFolder
-    from reconstruct.train.render import render_avatar
 
     trainer = RunFolder(run).resume()
-    state, bg = trainer.state, trainer.background
-    posed, groups = {}, {True: [], False: []}
-    for v in trainer.scene.eval_views:
-        if v.frame_index not in posed:
-            posed[v.frame_index] = state.posed(v.frame_index)
-        cam = v.camera if scale == 1 else v.camera.scaled(v.camera.width * scale, v.camera.height * scale)
-        r = render_avatar(posed[v.frame_index], cam, bg, normals=False)
-        mask_f = upsample(v.mask, scale, bg.device)
-        gt = upsample(v.image, scale, bg.device) + (1 - mask_f[..., None]) * bg
-        groups[v.seen].append(error_split(r.rgb.clamp(0, 1), gt, mask_f > 0.5, band))
+    groups = {True: [], False: []}
+    for v, r, gt, mask in rendered_views(trainer.state, trainer.scene, trainer.background, scale=scale):
+        groups[v.seen].append(error_split(r.rgb.clamp(0, 1), gt, mask, band))
     return {("seen" if k else "unseen"): summarize(rows) for k, rows in groups.items() if rows}
 
 

@@ -85,29 +85,37 @@ def upsample(image: np.ndarray, scale: int, device) -> torch.Tensor:
 
 
 @torch.no_grad()
-def evaluate_views(state: AvatarState, scene: Scene, background: torch.Tensor, *, lpips=None,
-                   views=None, scale: int = 1) -> tuple[list[dict], dict]:
-    """Renders the avatar ``state`` posed at each view's frame (with its Stage II pose-dependent
-    Gaussians where it has them) at ``scale`` x the view's resolution and compares it with the
-    view's ground truth."""
+def rendered_views(state: AvatarState, scene: Scene, background: torch.Tensor, *, views=None, scale: int = 1):
+    """Yields (view, render, ground truth over ``background``, boolean mask) for each evaluation
+    view (``scene.eval_views`` unless ``views``): the avatar ``state`` posed at the view's frame
+    (with its Stage II pose-dependent Gaussians where it has them), rendered at ``scale`` x the
+    view's resolution, the ground truth upsampled to it."""
     scale = int(scale)
     if scale < 1:
         raise ValueError(f"evaluation scale must be a positive integer, found {scale}")
-    rows = []
     device = background.device
-    leak_renders, leak_views = [], []
     posed_at: dict[int, object] = {}
     for v in (scene.eval_views if views is None else views):
         if v.frame_index not in posed_at:
             posed_at[v.frame_index] = state.posed(v.frame_index)
-        posed = posed_at[v.frame_index]
         cam = v.camera if scale == 1 else v.camera.scaled(v.camera.width * scale, v.camera.height * scale)
-        r = render_avatar(posed, cam, background, normals=False)
-        rgb, alpha = r.rgb, r.alpha
+        r = render_avatar(posed_at[v.frame_index], cam, background, normals=False)
         mask_f = upsample(v.mask, scale, device)
         gt = upsample(v.image, scale, device) + (1 - mask_f[..., None]) * background
-        mask = mask_f > 0.5
-        pred = rgb.clamp(0, 1)
+        yield v, r, gt, mask_f > 0.5
+
+
+@torch.no_grad()
+def evaluate_views(state: AvatarState, scene: Scene, background: torch.Tensor, *, lpips=None,
+                   views=None, scale: int = 1) -> tuple[list[dict], dict]:
+    """Renders the avatar ``state`` at each view (``rendered_views``) and compares it with the
+    view's ground truth."""
+    scale = int(scale)
+    rows = []
+    leak_renders, leak_views = [], []
+    for v, r, gt, mask in rendered_views(state, scene, background, views=views, scale=scale):
+        alpha = r.alpha
+        pred = r.rgb.clamp(0, 1)
         row = {"view": v.camera.name, "frame": v.frame_index, "azimuth_deg": v.azimuth_deg, "seen": v.seen,
                "psnr": float(psnr(pred, gt)), "ssim": float(ssim(pred, gt)), "lpips": None,
                "hole_fraction": hole_fraction(alpha, mask), "alpha_iou": alpha_iou(alpha, mask)}
