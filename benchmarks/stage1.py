@@ -16,10 +16,11 @@ change of load on a shared machine hits both.
 The ``loose-*`` configurations train the wide-trousers scene (``clothing=wide_trousers``) with the
 current defaults: without the garment layer (``loose-off``), with its rows every 2 cm (the
 layer before, ``loose-2cm``), every 1.4 cm (the default, ``loose-1.4cm``) and every 1 cm
-(``loose-1cm``); what the layer
+(``loose-1cm``), every 7 mm decoded at every Gaussian (``loose-7mm``) or at every other row and
+column (``loose-7mm-every2``: the decoder cost of 1.4 cm, ``AvatarConfig.garment_decode_every``); what the layer
 adds is its Gaussians, the alpha-against-mask loss, the spacing regulariser over its grid edges
 and its learned skinning with that prior (all in the pieces above, as in ``GivenViewStep``):
-    python benchmarks/stage1.py --configs loose-off,loose-2cm,loose-1.4cm,loose-1cm --rounds 2
+    python benchmarks/stage1.py --configs loose-off,loose-2cm,loose-1.4cm,loose-1cm,loose-7mm,loose-7mm-every2 --rounds 2
 and the layer's cover prior (``train/layer_cover.py``; in "losses") against none:
     python benchmarks/stage1.py --configs loose-1.4cm,loose-nocover --rounds 2
 and, on the coat scene, the layer kept clear of the posed body (``avatar/layer_clearance.py``; in
@@ -52,6 +53,9 @@ CONFIGS = {  # name -> (Stage1Config constructor, avatar overrides, the scene's 
     "loose-2cm": ("default", {"garment_layer_step": 0.02}, "wide_trousers"),
     "loose-1.4cm": ("default", {"garment_layer_step": 0.014}, "wide_trousers"),
     "loose-1cm": ("default", {"garment_layer_step": 0.010}, "wide_trousers"),
+    # Gaussians every 7 mm, decoded at every one (full) or every other row and column (layer_nodes.py)
+    "loose-7mm": ("default", {"garment_layer_step": 0.007}, "wide_trousers"),
+    "loose-7mm-every2": ("default", {"garment_layer_step": 0.007, "garment_decode_every": 2}, "wide_trousers"),
     "loose-nocover": ("default", {}, "wide_trousers"),  # the layer without its cover prior
     "coat": ("default", {}, "coat"),  # the layer kept clear of the posed body (the default)
     "coat-noclear": ("default", {"garment_clearance": 0.0}, "coat"),

@@ -863,3 +863,42 @@ def test_stage2_runs_on_an_avatar_with_a_layer(layered):
     assert kinds == {"given", "canonical", "observation"}
     out = t.step()
     assert not out.get("skipped")
+
+
+def test_a_layer_decoded_at_every_other_node_interpolates_its_outputs(body, layer):
+    """garment_decode_every=2: the decoder runs at the layer's nodes only; a Gaussian on a node
+    decodes as that node, the others as the bilinear blend of their four (checked against the
+    decoder called on the node inputs directly), any subset like the whole, and the gradient
+    reaches the nodes' features."""
+    from reconstruct.avatar.layer_nodes import layer_nodes
+
+    m = AvatarModel(body, _config(garment_decode_every=2), layer=layer)
+    rows, cols = layer.grid_shape
+    nodes = layer_nodes(rows, cols, layer.tubes, 2)
+    N, M = m.num_body, m.num_layer
+    assert tuple(m.layer_features.shape) == (1, 8, *nodes.shape)
+    assert m.num_nodes == m.node_grid.shape[0] + len(nodes.grid_rc) < m.node_grid.shape[0] + M
+    with torch.no_grad():
+        m.layer_features.normal_(0, 1.0)  # distinct features per node
+        m.decoder.color_residual.zero_()
+        raw = m.decode_raw()
+        at_nodes = m.decoder(m.layer_decoder_input())
+        want = {k: (v[torch.as_tensor(nodes.index)] * torch.as_tensor(nodes.weights, dtype=v.dtype)[..., None]).sum(1)
+                for k, v in at_nodes.items()}
+        for k in want:
+            assert torch.allclose(raw[k][N:], want[k], atol=1e-6), k
+        grid_id = torch.as_tensor(nodes.grid_rc[:, 0] * cols + nodes.grid_rc[:, 1])
+        assert torch.allclose(raw["color"][N + grid_id], at_nodes["color"], atol=1e-6)
+        # between nodes the outputs differ from every node's (not a copy of the nearest)
+        off = torch.ones(M, dtype=torch.bool)
+        off[grid_id] = False
+        assert not torch.isclose(raw["color"][N:][off][:, None], at_nodes["color"][None]).all(-1).any()
+        idx = torch.tensor([N + 1, 4, N + M - 1, N + 3, 0])
+        sub = m.decode_raw(index=idx)
+        for k in raw:
+            assert torch.allclose(sub[k], raw[k][idx], atol=1e-6), k
+    c = m.canonical()
+    c.colors[N:].sum().backward()
+    assert float(m.layer_features.grad.abs().sum()) > 0
+    with pytest.raises(ValueError, match="garment_decode_every must be an integer in"):
+        _config(garment_decode_every=0)

@@ -56,6 +56,11 @@ class AvatarConfig:
     # metres between the layer's rows; its columns are spaced alike round the hips (92 at 1.4 cm):
     # rows every 2 cm (64 columns) could not carry a 4 cm check round to the unseen side
     garment_layer_step: float = GARMENT_LAYER_STEP
+    # the layer's decoder runs at every k-th row and column of its grid, the Gaussians between
+    # interpolating its outputs (layer_nodes.py; each keeps its own colour residual), as the body's
+    # Gaussians interpolate its coarser decode map: a finer layer_step for the decoder cost of a
+    # coarser one. 1: every layer Gaussian is its own decoder evaluation
+    garment_decode_every: int = 1
     # metres between the heights at which the layer's learned skinning has its own factors
     # (AvatarModel.layer_skin_weights; the rows between interpolate): one factor per row let the
     # hem rows, 5 mm apart, follow other bones than the row above and tear 5 cm off in the walk
@@ -109,6 +114,9 @@ class AvatarConfig:
         if not (isinstance(self.garment_skin_sectors, int) and 1 <= self.garment_skin_sectors <= 64):
             raise ValueError(f"AvatarConfig.garment_skin_sectors must be an integer in [1, 64], found "
                              f"{self.garment_skin_sectors!r}")
+        if not (isinstance(self.garment_decode_every, int) and 1 <= self.garment_decode_every <= 8):
+            raise ValueError(f"AvatarConfig.garment_decode_every must be an integer in [1, 8], found "
+                             f"{self.garment_decode_every!r}")
         if not 0.005 <= self.garment_layer_step <= 0.1:
             raise ValueError(f"AvatarConfig.garment_layer_step must be in [0.005, 0.1] metres, found "
                              f"{self.garment_layer_step}")

@@ -56,6 +56,7 @@ from .decoder import GaussianDecoder
 from .garment_layer import GARMENT_PART, GarmentLayer, interpolation_matrix
 from .gaussian_sets import CanonicalGaussians, PosedGaussians, frame_quaternions
 from .layer_clearance import covered_ids, push_out
+from .layer_nodes import layer_nodes
 from .pose_encoder import PoseEncoder
 
 LAYER_SKIN_SUPPORT = 1e-3  # bones the garment layer's learned skinning may reweight: weight above this somewhere on it
@@ -149,12 +150,25 @@ class AvatarModel(nn.Module):
         self.pose_encoder: nn.Module | None = None
         if layer is not None:  # created after everything above: the body's initial values are the same
             rows, cols = layer.grid_shape
-            self.layer_features = nn.Parameter(torch.randn(1, C, rows, cols) * config.feature_init_std)
+            # the layer's decoder runs at its nodes (layer_nodes.py: every garment_decode_every-th row
+            # and column; every Gaussian at 1), its feature map holds one feature per node
+            nodes = layer_nodes(rows, cols, layer.tubes, config.garment_decode_every)
+            self.layer_features = nn.Parameter(torch.randn(1, C, *nodes.shape) * config.feature_init_std)
             logit = math.log(config.garment_opacity_init / (1 - config.garment_opacity_init))
             self.layer_opacity = nn.Parameter(torch.full((layer.num_gaussians,), logit / config.garment_opacity_gain))
             rc = torch.stack(torch.meshgrid(torch.arange(rows), torch.arange(cols), indexing="ij"), -1).reshape(-1, 2)
             self.register_buffer("layer_rc", rc, persistent=False)  # (M,2) row, column of each grid point
-            self.register_buffer("layer_uv", _layer_uv(rows, cols), persistent=False)
+            node_rc = torch.as_tensor(nodes.grid_rc)
+            self.register_buffer("layer_node_rc", torch.stack(torch.meshgrid(
+                torch.arange(nodes.shape[0]), torch.arange(nodes.shape[1]), indexing="ij"), -1).reshape(-1, 2),
+                persistent=False)  # (K,2) row, column of each node on the feature map
+            self.register_buffer("layer_uv", _layer_uv(rows, cols)[node_rc[:, 0] * cols + node_rc[:, 1]],
+                                 persistent=False)  # (K,2) the nodes' annulus coordinates
+            self.layer_interpolated = config.garment_decode_every > 1
+            if self.layer_interpolated:
+                self.register_buffer("layer_node_index", torch.as_tensor(nodes.index), persistent=False)  # (M,4)
+                self.register_buffer("layer_node_weights", torch.as_tensor(nodes.weights, dtype=torch.float32),
+                                     persistent=False)  # (M,4)
             edges = torch.as_tensor(layer.edges())
             p = layer.positions.float()
             self.register_buffer("layer_edges", edges + self.num_body, persistent=False)  # (E,2) Gaussian ids
@@ -198,7 +212,7 @@ class AvatarModel(nn.Module):
     @property
     def num_nodes(self) -> int:
         """How many decoder evaluations decode every Gaussian."""
-        return int(self.node_grid.shape[0]) + self.num_layer
+        return int(self.node_grid.shape[0]) + (0 if self.layer is None else int(self.layer_node_rc.shape[0]))
 
     def layer_param_groups(self, lr_features: float, lr_opacity: float, lr_skinning: float = 0.0) -> list[dict]:
         """Adam parameter groups of the garment layer (its feature map, at the body feature map's rate;
@@ -251,12 +265,26 @@ class AvatarModel(nn.Module):
 
     # ----- decoding -------------------------------------------------------------------------
     def layer_decoder_input(self, index: torch.Tensor | None = None) -> torch.Tensor:
-        """[L, L, uv] of the garment layer's Gaussians (all, or those of ``index``, 0..M-1): its own
-        feature map at their grid points and their annulus coordinates (``_layer_uv``)."""
-        rc = self.layer_rc if index is None else self.layer_rc[index]
+        """[L, L, uv] of the garment layer's decode nodes (all, or those of ``index``): its own
+        feature map at the nodes and their annulus coordinates (``_layer_uv``). Without
+        interpolation (``garment_decode_every`` 1) node i is layer Gaussian i."""
+        rc = self.layer_node_rc if index is None else self.layer_node_rc[index]
         uv = self.layer_uv if index is None else self.layer_uv[index]
-        s = self.layer_features[0][:, rc[:, 0], rc[:, 1]].T  # each Gaussian sits on a grid point of the map
+        s = self.layer_features[0][:, rc[:, 0], rc[:, 1]].T  # each node sits on a point of the map
         return torch.cat([s, s, uv], dim=1)
+
+    def _layer_nodes(self, index: torch.Tensor | None):
+        """(decoder input at the nodes the layer Gaussians ``index`` (0..M-1) need, the function from
+        the decoder's outputs there to those Gaussians' raw outputs)."""
+        if not self.layer_interpolated:
+            return self.layer_decoder_input(index), (lambda out: out)
+        node_index = self.layer_node_index if index is None else self.layer_node_index[index]
+        weights = self.layer_node_weights if index is None else self.layer_node_weights[index]
+        needed = None
+        if index is not None:
+            needed, node_index = torch.unique(node_index, return_inverse=True)
+        return (self.layer_decoder_input(needed),
+                lambda out: {k: (v[node_index] * weights[..., None]).sum(1) for k, v in out.items()})
 
     def _body_nodes(self, pose_features: torch.Tensor | None, index: torch.Tensor | None):
         """(decoder input at the decode nodes the body Gaussians ``index`` need, the function from the
@@ -293,11 +321,15 @@ class AvatarModel(nn.Module):
             x, finish = self._body_nodes(pose_features, body_index)
             parts.append(x)
             n_body = len(x)
+        layer_finish = None
         if layer_index is None or len(layer_index):
-            parts.append(self.layer_decoder_input(layer_index))
+            x, layer_finish = self._layer_nodes(layer_index)
+            parts.append(x)
         out = self.decoder(torch.cat(parts))
         body_out = finish({k: v[:n_body] for k, v in out.items()}) if finish is not None else None
         layer_out = {k: v[n_body:] for k, v in out.items()}
+        if layer_finish is not None:
+            layer_out = layer_finish(layer_out)
         if body_out is None:
             return layer_out
         merged = {k: torch.cat([body_out[k], layer_out[k]]) for k in out}
