@@ -56,7 +56,8 @@ def _spec_items(spec: str) -> list[tuple[str, str]]:
 def parse_synthetic_spec(spec: str) -> SyntheticConfig:
     """``synthetic:seed=3,frames=40,size=256,clothing=independent`` -> SyntheticConfig (keys: the
     config's fields, plus the short names ``frames``, ``size`` and ``azimuths``; ``clothing`` is
-    ``garment``, ``independent`` or a loose garment: ``skirt``, ``coat``, ``dress``, ``wide_trousers``)."""
+    ``garment``, ``independent`` or a loose garment: ``skirt``, ``coat``, ``dress``, ``wide_trousers``; with a
+    loose garment ``fit=painted`` paints its colours on the body instead of dressing it)."""
     fields = {f.name: f.type for f in dataclasses.fields(SyntheticConfig)}
     kwargs = {}
     for key, value in _spec_items(spec):
@@ -100,6 +101,8 @@ def synthetic_cache_key(config: SyntheticConfig) -> str:
     (``clothing=skirt|coat|dress|wide_trousers``) are in the key through ``clothing`` and add the
     garment version (loose_outfit.GARMENT_VERSION)."""
     d = dataclasses.asdict(config)
+    if d["fit"] == "loose":  # the default fit keeps the keys made before the field existed
+        del d["fit"]
     if d["clothing"] == "independent":
         del d["clothing"]
     elif d["clothing"] in LOOSE_GARMENTS:  # loose garments: their geometry/skinning/colour version too

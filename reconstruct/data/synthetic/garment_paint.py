@@ -143,6 +143,71 @@ def dress_body_texels(body: BodyModel, painted: PaintedClothing, colours: Garmen
     """The body atlas of ``painted`` with what the garment ``kind`` changes on the body repainted
     (skin: the painted colour of the hands)."""
     uv = build_uv_map(body, size)
+    col = _dressed_texel_colours(body, uv, painted, colours, kind)
+    return _texel_atlas(uv, col, size)
+
+
+def _texel_atlas(uv, col: np.ndarray, size: int) -> np.ndarray:
+    _, fill_index = ndimage.distance_transform_edt(~uv.mask, return_indices=True)
+    atlas = _to_atlas(uv, np.clip(col, 0, 1), size, fill_index)
+    return (atlas * 255 + 0.5).astype(np.uint8)
+
+
+def _outer_surface_samples(garment: GarmentMesh, per_edge: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points spread over the garment's outer faces (``per_edge`` steps along each triangle edge):
+    (P,3) positions, (P,2) atlas coordinates interpolated from the faces' corner UVs, (P,3) the
+    faces' outward unit normals."""
+    outer_faces = garment.outer[garment.faces].all(1)
+    faces, uvs = garment.faces[outer_faces], garment.corner_uvs[outer_faces]
+    tri = garment.vertices[faces]  # (F,3,3)
+    i, j = np.meshgrid(np.arange(per_edge + 1), np.arange(per_edge + 1), indexing="ij")
+    keep = (i + j) <= per_edge
+    b = np.stack([i[keep], j[keep], per_edge - i[keep] - j[keep]], 1) / per_edge  # (S,3) barycentric
+    pos = np.einsum("sk,fkd->fsd", b, tri).reshape(-1, 3)
+    uv = np.einsum("sk,fkd->fsd", b, uvs.astype(np.float64)).reshape(-1, 2)
+    nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+    return pos, uv, np.repeat(nrm, len(b), axis=0)
+
+
+def garment_on_body(body: BodyModel, garment: GarmentMesh, garment_atlas: np.ndarray, uv,
+                    per_edge: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """What of the loose ``garment`` lies over each texel of ``body``'s UV map ``uv``: (N,) True
+    for the texels inside the garment's shell (between its top and hem, behind the nearest point
+    of its outer surface), and (N,3) the colour ``garment_atlas`` (``paint_garment``'s) has at that
+    nearest point. The garment's pattern, front and back details, shrunk onto the body along the
+    shortest way."""
+    from scipy.spatial import cKDTree
+
+    pos, tex_uv, nrm = _outer_surface_samples(garment, per_edge)
+    p = uv.positions.numpy()
+    _, idx = cKDTree(pos).query(p)
+    z_out = garment.vertices[garment.outer, 2]
+    inside = ((pos[idx] - p) * nrm[idx]).sum(1) >= -1e-3
+    inside &= (p[:, 2] <= z_out.max()) & (p[:, 2] >= z_out.min())
+    size = garment_atlas.shape[0]
+    rows = (1.0 - tex_uv[idx, 1]) * size - 0.5
+    cols = tex_uv[idx, 0] * garment_atlas.shape[1] - 0.5
+    atlas = garment_atlas[..., :3].astype(np.float64) / 255.0
+    colour = np.stack([ndimage.map_coordinates(atlas[..., d], [rows, cols], order=1, mode="nearest")
+                       for d in range(3)], -1)
+    return inside, colour
+
+
+def painted_fit_texture(body: BodyModel, painted: PaintedClothing, garment: GarmentMesh, colours: GarmentColours,
+                        garment_atlas: np.ndarray, size: int) -> np.ndarray:
+    """The body atlas of the ``fit=painted`` scenes: the body dressed as under the garment
+    (``dress_body_texels``), then every texel inside the garment's shell repainted with the
+    garment's own colour there (``garment_on_body``): the loose garment's pattern worn tight."""
+    uv = build_uv_map(body, size)
+    col = _dressed_texel_colours(body, uv, painted, colours, garment.kind)
+    inside, colour = garment_on_body(body, garment, garment_atlas, uv)
+    col[inside] = colour[inside]
+    return _texel_atlas(uv, col, size)
+
+
+def _dressed_texel_colours(body: BodyModel, uv, painted: PaintedClothing, colours: GarmentColours,
+                           kind: str) -> np.ndarray:
     col = painted.texel_colors.copy()
     if len(col) != len(uv.texel_rc):
         raise ValueError("garment painting: the body painting and the UV map disagree (different atlas sizes?)")
@@ -162,6 +227,4 @@ def dress_body_texels(body: BodyModel, painted: PaintedClothing, colours: Garmen
     elif colours.legs == "trousers":  # legs and seat: what shows between the trouser legs' tubes
         below_hips = is_part("torso") & (uv.positions.numpy()[:, 2] <= landmarks(body)["hips"])
         col[legs | below_hips] = colours.base
-    _, fill_index = ndimage.distance_transform_edt(~uv.mask, return_indices=True)
-    atlas = _to_atlas(uv, np.clip(col, 0, 1), size, fill_index)
-    return (atlas * 255 + 0.5).astype(np.uint8)
+    return col

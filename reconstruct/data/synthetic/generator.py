@@ -10,7 +10,10 @@ Loose clothing (``clothing=skirt|coat|dress|wide_trousers``, LOOSE_GARMENTS): th
 with the garment model and wears a garment with geometry (garment_mesh.py: a closed shell built
 round the body's hull, garment_skinning.py: weights blended across the legs, garment_paint.py: its
 colours), rendered together with the body (loose_outfit.py). The body, its motion and the cameras
-are those of the ``garment`` scene of the same seed.
+are those of the ``garment`` scene of the same seed. With ``fit=painted`` the garment's colours are
+painted on the body under it instead (garment_paint.painted_fit_texture) and no mesh is worn: the
+tight scene in the loose garment's own pattern, to tell what the pattern costs from what the cloth's
+volume costs.
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ from .clothing import CLOTHING_MODELS, LEAK_DETAILS, PaintedClothing, paint_clot
 from .garment_mesh import LOOSE_GARMENTS
 from .motion import walk_in_place
 
+GARMENT_FITS = ("loose", "painted")
+
 
 @dataclass(frozen=True)
 class SyntheticConfig:
@@ -46,17 +51,30 @@ class SyntheticConfig:
     supersample: int = 2
     leg_spread_deg: float = 5.0
     clothing: str = "garment"  # "garment" (backs continue the fronts), "independent" (random backs) or a loose garment
+    # a loose garment worn "loose" (its mesh, standing off the body) or "painted" (its colours painted
+    # on the body under it, no mesh: the tight reference in the same pattern)
+    fit: str = "loose"
 
     def __post_init__(self) -> None:
         if self.clothing not in CLOTHING_MODELS + LOOSE_GARMENTS:
             raise ValueError(f"synthetic scene: clothing must be one of {', '.join(CLOTHING_MODELS + LOOSE_GARMENTS)}, "
                              f"found {self.clothing!r}")
+        if self.fit not in GARMENT_FITS:
+            raise ValueError(f"synthetic scene: fit must be one of {', '.join(GARMENT_FITS)}, found {self.fit!r}")
+        if self.fit != "loose" and self.clothing not in LOOSE_GARMENTS:
+            raise ValueError(f"synthetic scene: fit={self.fit} needs a loose garment "
+                             f"(clothing={'|'.join(LOOSE_GARMENTS)}), found clothing={self.clothing}")
         if self.num_frames < 1:
             raise ValueError(f"synthetic scene: num_frames must be >= 1, found {self.num_frames}")
         if self.image_size < 32:
             raise ValueError(f"synthetic scene: image_size must be >= 32, found {self.image_size}")
         if self.num_eval_azimuths < 1 or self.eval_frames < 1:
             raise ValueError("synthetic scene: need at least one evaluation azimuth and frame")
+
+    @property
+    def garment_mesh(self) -> bool:
+        """Whether the scene's person wears a garment with geometry (a loose garment, fit=loose)."""
+        return self.clothing in LOOSE_GARMENTS and self.fit == "loose"
 
 
 def quantize(image: np.ndarray) -> np.ndarray:
@@ -87,12 +105,19 @@ def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progre
     loose = config.clothing in LOOSE_GARMENTS
     painted = paint_clothing(body, rng, config.texture_size, "garment" if loose else config.clothing)
     texture = painted.texture
-    outfit = None
+    outfit = painted_garment = None
     if loose:
         from .loose_outfit import dress
 
         outfit = dress(body, config.clothing, painted, config.seed, config.texture_size)
         texture = outfit.body_texture
+        if not config.garment_mesh:  # fit=painted: the garment's colours on the body, no mesh
+            from .garment_paint import painted_fit_texture
+
+            texture = painted_fit_texture(body, painted, outfit.garment, outfit.colours, outfit.garment_texture,
+                                          config.texture_size)
+            painted_garment = {**outfit.colours.description, "version": _garment_version()}
+            outfit = None
     poses = walk_in_place(body.bone_labels, config.num_frames, config.fps, rng)
 
     z = body.canonical_vertices[:, 2].numpy()
@@ -144,6 +169,8 @@ def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progre
                                  "garment_faces": int(len(outfit.garment.faces)),
                                  "top_m": round(outfit.garment.info["top_m"], 4),
                                  "hem_m": round(outfit.garment.info["hem_m"], 4)}
+    if painted_garment is not None:
+        meta["painted_garment"] = painted_garment
     scene = Scene(synthetic_scene_name(config), spec, frames, views, config.fps, meta)
     add_front_leak(scene, painted, config, outfit)
     return scene
@@ -153,7 +180,8 @@ def synthetic_scene_name(config: SyntheticConfig) -> str:
     """``synthetic-seedS`` for the original (independent) clothes -- the name runs trained before the
     garment model recorded in their checkpoints -- and ``synthetic-seedS-garment`` for garments, so
     that a checkpoint of one is refused on the other."""
-    return f"synthetic-seed{config.seed}" + ("" if config.clothing == "independent" else f"-{config.clothing}")
+    return (f"synthetic-seed{config.seed}" + ("" if config.clothing == "independent" else f"-{config.clothing}")
+            + ("" if config.fit == "loose" else f"-{config.fit}"))
 
 
 def _garment_version() -> int:
@@ -193,7 +221,8 @@ def posed_person(body, outfit, pose) -> tuple[np.ndarray, np.ndarray]:
 def loose_outfit_of(scene: Scene):
     """The LooseOutfit of a synthetic loose-clothing scene (rebuilt from its configuration), or None."""
     cfg = scene.meta.get("config") or {}
-    if scene.meta.get("source") != "synthetic" or cfg.get("clothing") not in LOOSE_GARMENTS:
+    if scene.meta.get("source") != "synthetic" or cfg.get("clothing") not in LOOSE_GARMENTS \
+            or cfg.get("fit", "loose") != "loose":
         return None
     from .loose_outfit import dress
 
