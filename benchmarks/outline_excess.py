@@ -28,6 +28,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from reconstruct.atomic import atomic_output  # noqa: E402
 from reconstruct.train.evaluate import IOU_ALPHA, rendered_views  # noqa: E402
 from reconstruct.train.render import render_avatar  # noqa: E402
 
@@ -175,7 +176,8 @@ def main(argv=None) -> int:
         from PIL import Image
 
         img = sheet(pictures, columns=12 if len(pictures) % 12 == 0 else 6)
-        Image.fromarray((np.clip(img, 0, 1) * 255).astype(np.uint8)).save(args.sheet)
+        with atomic_output(args.sheet) as tmp:
+            Image.fromarray((np.clip(img, 0, 1) * 255).astype(np.uint8)).save(tmp)
         print(f"wrote {args.sheet}")
     return 0
 
