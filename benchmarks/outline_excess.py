@@ -37,7 +37,7 @@ def row_sides(cover: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarr
     """(left, right, between) boolean maps splitting the covered pixels outside ``mask`` (both
     (H,W) bool) by where they lie in their row: left of the row's first mask pixel, right of its
     last, or in between (a gap in the mask's row). Rows without mask pixels count as neither."""
-    H, W = mask.shape
+    W = mask.shape[1]
     cols = np.arange(W)[None, :]
     any_row = mask.any(1)
     first = np.where(any_row, mask.argmax(1), W)[:, None]
@@ -59,14 +59,22 @@ def row_widths_mm(side: np.ndarray, depth: np.ndarray, focal: float) -> np.ndarr
     return np.asarray(out)
 
 
+def excess_owners(cover: np.ndarray, mask: np.ndarray, layer: np.ndarray | None,
+                  body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(excess, by_layer, by_body): the covered pixels outside ``mask``, those the layer alone
+    covers (none without a layer), and those the body alone covers and the layer does not. The
+    rest of the excess is covered only by the two together."""
+    excess = cover & ~mask
+    by_layer = excess & layer if layer is not None else np.zeros_like(excess)
+    return excess, by_layer, excess & body & ~by_layer
+
+
 def view_excess(cover: np.ndarray, mask: np.ndarray, layer: np.ndarray | None, body: np.ndarray,
                 depth: np.ndarray, focal: float) -> dict:
     """The numbers of the module docstring for one view: ``cover``, ``layer``, ``body`` are the
     (H,W) bool coverage of the whole avatar, the layer alone (None without one) and the body alone."""
     area = max(int(mask.sum()), 1)
-    excess = cover & ~mask
-    by_layer = excess & layer if layer is not None else np.zeros_like(excess)
-    by_body = excess & body & ~by_layer
+    excess, by_layer, by_body = excess_owners(cover, mask, layer, body)
     left, right, between = row_sides(cover, mask)
     wl, wr = row_widths_mm(left, depth, focal), row_widths_mm(right, depth, focal)
     return {"excess": excess.sum() / area, "deficit": (mask & ~cover).sum() / area,
@@ -114,9 +122,7 @@ def run_excess(run: Path, scale: int = 1) -> tuple[list[dict], list[np.ndarray]]
         e = view_excess(cover, mask, layer, body, depth, float(cam.K[0, 0]))
         rows.append({"azimuth": float(v.azimuth_deg), "seen": bool(v.seen), "frame": int(v.frame_index), **e})
         pic = gt.cpu().numpy().copy() * 0.6 + 0.4
-        ex = cover & ~mask
-        lay = ex & layer if layer is not None else np.zeros_like(ex)
-        bod = ex & body & ~lay
+        ex, lay, bod = excess_owners(cover, mask, layer, body)
         pic[lay] = (0.9, 0.1, 0.1)
         pic[bod] = (0.1, 0.2, 0.9)
         pic[ex & ~lay & ~bod] = (0.8, 0.1, 0.8)
