@@ -106,18 +106,18 @@ def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progre
     painted = paint_clothing(body, rng, config.texture_size, "garment" if loose else config.clothing)
     texture = painted.texture
     outfit = painted_garment = None
-    if loose:
+    if config.garment_mesh:
         from .loose_outfit import dress
 
         outfit = dress(body, config.clothing, painted, config.seed, config.texture_size)
         texture = outfit.body_texture
-        if not config.garment_mesh:  # fit=painted: the garment's colours on the body, no mesh
-            from .garment_paint import painted_fit_texture
+    elif loose:  # fit=painted: the garment's colours on the body, no mesh (so no skinning)
+        from .garment_paint import painted_fit_texture
+        from .loose_outfit import garment_pattern
 
-            texture = painted_fit_texture(body, painted, outfit.garment, outfit.colours, outfit.garment_texture,
-                                          config.texture_size)
-            painted_garment = {**outfit.colours.description, "version": _garment_version()}
-            outfit = None
+        garment, colours, garment_texture = garment_pattern(body, config.clothing, config.seed, config.texture_size)
+        texture = painted_fit_texture(body, painted, garment, colours, garment_texture, config.texture_size)
+        painted_garment = {**colours.description, "version": _garment_version()}
     poses = walk_in_place(body.bone_labels, config.num_frames, config.fps, rng)
 
     z = body.canonical_vertices[:, 2].numpy()
@@ -221,12 +221,13 @@ def posed_person(body, outfit, pose) -> tuple[np.ndarray, np.ndarray]:
 def loose_outfit_of(scene: Scene):
     """The LooseOutfit of a synthetic loose-clothing scene (rebuilt from its configuration), or None."""
     cfg = scene.meta.get("config") or {}
-    if scene.meta.get("source") != "synthetic" or cfg.get("clothing") not in LOOSE_GARMENTS \
-            or cfg.get("fit", "loose") != "loose":
+    if scene.meta.get("source") != "synthetic" or cfg.get("clothing") not in LOOSE_GARMENTS:
+        return None
+    config = SyntheticConfig(**cfg)  # scenes made before `fit` existed read as fit=loose
+    if not config.garment_mesh:
         return None
     from .loose_outfit import dress
 
-    config = SyntheticConfig(**cfg)
     rng = np.random.default_rng(config.seed)
     spec = BodySpec.anny(random_phenotype(rng), config.leg_spread_deg)
     body = spec.build()

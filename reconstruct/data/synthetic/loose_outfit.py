@@ -83,10 +83,17 @@ class LooseOutfit:
                             supersample=supersample, ambient=ambient)
 
 
+def garment_pattern(body: BodyModel, kind: str, seed: int, texture_size: int) -> tuple[GarmentMesh, GarmentColours, np.ndarray]:
+    """The loose garment ``kind`` of scene ``seed`` on ``body``, unskinned: its mesh, its colours and
+    its (S,S,3) uint8 atlas. What ``dress`` and the ``fit=painted`` scenes (which wear no mesh) share."""
+    garment = build_garment(body, kind)
+    colours = draw_colours(garment_rng(seed, kind), kind)
+    return garment, colours, paint_garment(garment, colours, texture_size)
+
+
 def dress(body: BodyModel, kind: str, painted: PaintedClothing, seed: int, texture_size: int) -> LooseOutfit:
     """``body`` (painted with clothing.py's garment model) wearing the loose garment ``kind``."""
-    garment = build_garment(body, kind)
+    garment, colours, garment_texture = garment_pattern(body, kind, seed, texture_size)
     weights = garment_weights(body, garment)
-    colours = draw_colours(garment_rng(seed, kind), kind)
     body_tex = dress_body_texels(body, painted, colours, kind, texture_size)
-    return LooseOutfit(body, garment, weights, body_tex, paint_garment(garment, colours, texture_size), colours)
+    return LooseOutfit(body, garment, weights, body_tex, garment_texture, colours)
