@@ -6,6 +6,7 @@ with a face in front and hair at the sides (the back gets hair, not skin)."""
 import numpy as np
 import torch
 
+from reconstruct.avatar.garment_layer import GARMENT_PART
 from reconstruct.body.parts import PART_INDEX
 from reconstruct.appearance.wrap_fill import WrapFillConfig, wrap_fill_colors
 
@@ -48,6 +49,49 @@ def test_stripes_carried_by_height_and_emblem_left_out():
     assert np.linalg.norm(out[back] - YELLOW, axis=1).min() > 0.3
     # seen colours unchanged
     np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
+
+
+def _striped_coat_layer(R=60, C=92, row_step=0.014, rows_per_stripe=4):
+    """A garment layer's row-major grid round a tube (rows one height each, ``row_step`` apart,
+    theta = 0 facing the front): green and purple stripes of ``rows_per_stripe`` rows, an open
+    front whose lining (a purple a little darker than the stripes') shows down the middle at
+    every height, seen over the front half."""
+    GREEN, PURPLE = np.array([0.45, 0.6, 0.35]), np.array([0.3, 0.2, 0.27])
+    th = 2 * np.pi * np.arange(C) / C - np.pi
+    z = 1.2 - row_step * np.arange(R)
+    pos = np.stack([np.broadcast_to(0.2 * np.sin(th), (R, C)), np.broadcast_to(-0.2 * np.cos(th), (R, C)),
+                    np.broadcast_to(z[:, None], (R, C))], -1).reshape(-1, 3)
+    green_row = (np.arange(R) // rows_per_stripe) % 2 == 0
+    col = np.where(green_row[:, None, None], GREEN, PURPLE) * np.ones((R, C, 1))
+    col[:, np.abs(np.degrees(th)) < 12] = PURPLE - 0.06  # the lining, within the palette tolerance of PURPLE
+    seen = np.broadcast_to(np.abs(np.degrees(th)) <= 100, (R, C))
+    back_middle = np.broadcast_to(np.abs(np.degrees(th)) > 168, (R, C))
+    return pos, col.reshape(-1, 3), seen.reshape(-1), back_middle, green_row, GREEN
+
+
+def test_layer_mirror_is_gated_by_its_own_row_not_by_stripes_nearby():
+    """On a garment layer the mirrored colour must be one the band shows in the same row: stripes
+    put both colours within ``palette_height`` of every height, and the open front's dark lining,
+    mirrored to the back through the coronal plane, passed the gate between two green stripes (a
+    dark band down the back of coat seed 2)."""
+    R, C = 60, 92
+    pos, col, seen, back_middle, green_row, GREEN = _striped_coat_layer(R, C)
+    parts = np.full(R * C, GARMENT_PART)
+    cfg = WrapFillConfig(smooth_sweeps=0)
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg, layer_grid=(R, C, 1)).numpy().reshape(R, C, 3)
+    # the middle of green stripes (a row in from each edge: the 1 cm slab of the low fill mixes them)
+    inner = green_row & np.r_[False, green_row[:-1]] & np.r_[green_row[1:], False]
+    mid = back_middle.reshape(R, C) & inner[:, None]
+    assert mid.sum() > 50
+    np.testing.assert_allclose(out[mid], np.broadcast_to(GREEN, out[mid].shape), atol=1e-6)
+    # the same gate over palette_height (8 cm, the body's) lets the lining through there
+    wide = WrapFillConfig(smooth_sweeps=0, layer_palette_rows=cfg.palette_height / 0.014)
+    old = wrap_fill_colors(pos, parts, seen, col, None, wide, layer_grid=(R, C, 1)).numpy().reshape(R, C, 3)
+    assert np.abs(old[mid] - GREEN).max() > 0.2
+    # without the grid the layer is gated like a body part (palette_height)
+    np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy().reshape(R, C, 3)[mid],
+                                  old[mid])
+    np.testing.assert_allclose(out.reshape(-1, 3)[seen], col[seen].astype(np.float32), atol=1e-6)
 
 
 def test_emblem_reaching_one_side_is_left_out():
