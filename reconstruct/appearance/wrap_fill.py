@@ -377,8 +377,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                     height = cfg.layer_palette_rows * row
             band_tree = cKDTree(_joint(band_col, band_pos[:, 2], cfg, height))
             q = _joint(mirrored, query[:, 2], cfg, height)
-            # a band colour within the tolerance in every channel and within palette_height in
-            # height: a box test, the max-norm in the joint (colour, scaled height) space
+            # a band colour within the tolerance in every channel and within ``height`` in height:
+            # a box test, the max-norm in the joint (colour, scaled height) space
             dp, _ = band_tree.query(q, p=np.inf)
             keep &= dp <= cfg.palette_tolerance
         out[todo] = np.where(keep[:, None], mirrored, low)
