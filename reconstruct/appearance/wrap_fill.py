@@ -197,8 +197,9 @@ def _joint(col: np.ndarray, z: np.ndarray, cfg: WrapFillConfig, height: float | 
 
 def _layer_row_spacing(layer_pos: np.ndarray, rows: int) -> float | None:
     """The median height between consecutive rows of a garment layer's row-major Gaussians
-    (``rows`` rows); None when it has fewer than two rows or they do not step in height."""
-    if rows < 2 or len(layer_pos) % rows:
+    (``rows`` rows of equal length); None when it has fewer than two rows or they do not step in
+    height."""
+    if rows < 2:
         return None
     z = layer_pos[:, 2].reshape(rows, -1).mean(1)
     step = float(np.median(np.abs(np.diff(z))))
@@ -277,6 +278,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         if len(todo) == 0:
             continue
         name = PART_NAMES[p] if p < len(PART_NAMES) else ""  # "" for a garment layer
+        # a garment layer given with its grid: members are in index order, its row-major grid
+        on_grid = layer_grid is not None and p == GARMENT_PART and len(members) == layer_grid[0] * layer_grid[1]
         centre_y = pos[members, 1].mean()
         src = members[seen[members]]
         never_behind = (pos[src, 1] > centre_y).sum() < cfg.k
@@ -371,7 +374,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             keep &= ~no_mirror[todo]
         if keep.any():
             height = cfg.palette_height
-            if layer_grid is not None and p == GARMENT_PART and len(members) == layer_grid[0] * layer_grid[1]:
+            if on_grid:
                 row = _layer_row_spacing(pos[members], layer_grid[0])
                 if row is not None:
                     height = cfg.layer_palette_rows * row
@@ -383,8 +386,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             keep &= dp <= cfg.palette_tolerance
         out[todo] = np.where(keep[:, None], mirrored, low)
         filled[todo] = True
-        if layer_grid is not None and p == GARMENT_PART and len(members) == layer_grid[0] * layer_grid[1]:
-            # members are in index order: the layer's row-major grid
+        if on_grid:
             cont, done = continue_layer(col[members], seen[members], layer_grid[:2], layer_grid[2])
             if no_mirror is not None:  # a redo asks for the low-frequency fill only
                 done &= ~no_mirror[members]
