@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from reconstruct.appearance.periodic_fill import continue_layer, continue_round, tube_period
-from reconstruct.appearance.wrap_fill import wrap_fill_colors
+from reconstruct.appearance.wrap_fill import WrapFillConfig, wrap_fill_colors
 from reconstruct.avatar.garment_layer import GARMENT_PART
 
 A, B = np.array([0.7, 0.3, 0.2]), np.array([0.2, 0.6, 0.3])
@@ -104,7 +104,9 @@ def test_wrap_fill_carries_the_layers_checks_round_by_periods():
     # a region under a redo keeps the low-frequency fill (no copied detail)
     redo = back & (np.arange(R * C) // C < 10)
     redone = wrap_fill_colors(pos, parts, seen, col, None, no_mirror=redo, layer_grid=(R, C, 1)).numpy()
-    plain = wrap_fill_colors(pos, parts, seen, col, None, no_mirror=redo).numpy()
+    # (the low fill of the layer's own rows: the same with the mirror off everywhere)
+    plain = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(max_mirror_distance=0.0), no_mirror=redo,
+                             layer_grid=(R, C, 1)).numpy()
     np.testing.assert_array_equal(redone[redo], plain[redo])
     np.testing.assert_array_equal(redone[back & ~redo], with_grid[back & ~redo])
     # a solid layer: the grid changes nothing

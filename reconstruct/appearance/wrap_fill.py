@@ -48,7 +48,7 @@ are the nearest seen or already filled ones of any part.
 
 Parts past the body's (``parts >= len(PART_NAMES)``): a garment layer's Gaussians
 (``garment_layer.GARMENT_PART``) are filled as one more part -- its band is the seen cloth round
-the tube at the same height, its mirror the same row at theta -> pi - theta (through the part's
+the tube in the same row (``layer_row_median``), its mirror the same row at theta -> pi - theta (through the part's
 coronal plane), kept only when the band of that row shows its colour (the layer's rows lie at one
 height each: ``layer_palette_rows``); it has no left/right twin and no part rule of the lists
 below applies to it.
@@ -88,6 +88,14 @@ class WrapFillConfig:
     # (coat seed 2 refilled on its Stage I checkpoint: 28.96 -> 29.31 dB unseen at x2, wide
     # trousers seed 2: 28.07 -> 28.16)
     layer_palette_rows: float = 0.5
+    # on a garment layer (given its grid) the low-frequency fill (step 2) takes the median of its
+    # own row's band -- the row's seen Gaussians nearest to it when that band holds fewer than
+    # ``k`` -- not of a slab widened over the rows above and below. A row's band is a column or
+    # two each side (``band`` against the layer's 1.4 cm columns), short of ``k``, and the widened
+    # slab mixed a stripe with its neighbours: the back of coat seed 2 came out in dulled stripes
+    # (refilled on the Stage I checkpoints, unseen at x2: coat seed 2 +0.10 dB, skirt seed 2
+    # +0.07, wide trousers seed 2 -0.01, coat seed 1 -0.01, whose checks the periodic fill carries)
+    layer_row_median: bool = True
     max_mirror_distance: float = 0.04  # metres: farther mirror matches are not used
     smooth_sweeps: int = 2
     # parts the video never saw behind their centre (fewer than ``k`` reliably seen Gaussians
@@ -186,6 +194,25 @@ def _reaching_back(pos_unseen: np.ndarray, behind: np.ndarray, spacing: float) -
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, label = connected_components(graph, directed=False)
     return np.isin(label, np.unique(label[behind]))
+
+
+def _row_median(rows_q: np.ndarray, pos_q: np.ndarray, rows_b: np.ndarray, pos_b: np.ndarray,
+                col_b: np.ndarray, rows_s: np.ndarray, pos_s: np.ndarray, col_s: np.ndarray,
+                k: int) -> np.ndarray:
+    """Median colour of the ``k`` Gaussians nearest to each query among the band Gaussians of its
+    own grid row (``rows_*``: row indices), or among the row's seen Gaussians (``*_s``) when its band
+    holds fewer than ``k``; NaN for a query whose row has no seen Gaussian."""
+    out = np.full((len(pos_q), 3), np.nan)
+    for r in np.unique(rows_q):
+        q = rows_q == r
+        b = rows_b == r
+        pos, col = (pos_b[b], col_b[b]) if b.sum() >= k else (pos_s[rows_s == r], col_s[rows_s == r])
+        if len(pos) == 0:
+            continue
+        kk = min(k, len(pos))
+        _, nn = cKDTree(pos).query(pos_q[q], k=kk)
+        out[q] = np.median(col[np.asarray(nn).reshape(q.sum(), kk)], axis=1)
+    return out
 
 
 def _joint(col: np.ndarray, z: np.ndarray, cfg: WrapFillConfig, height: float | None = None) -> np.ndarray:
@@ -360,6 +387,12 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                     covered = hair_covered(pos[todo], pos[hsrc], hair, centre)
         # 2. low-frequency fill along the wrap direction (same height)
         low = _same_height_median(pos[todo], band_pos, band_col, cfg)
+        if on_grid and cfg.layer_row_median:
+            row_of = lambda i: (i - members[0]) // layer_grid[1]  # noqa: E731
+            in_row = _row_median(row_of(todo), pos[todo], row_of(src[band_idx]), band_pos, band_col,
+                                 row_of(src), src_pos, col[src], cfg.k)
+            ok = np.isfinite(in_row).all(1)
+            low[ok] = in_row[ok]
         if covered is not None and covered.any():
             low[covered] = _same_height_median(pos[todo][covered], pos[hsrc][hair], col[hsrc][hair], cfg)
         # 3. the mirrored colour, kept where the band shows that colour at a nearby height
