@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from reconstruct.avatar.garment_layer import (GarmentLayer, VolumeHint, build_garment_layer, garment_layer_for,
+from reconstruct.avatar.garment_layer import (SIDE_PROFILE_SLOPE, GarmentLayer, VolumeHint, build_garment_layer, garment_layer_for,
                                               torso_top_height, volume_hint_from_masks)
 from reconstruct.avatar.layer_profile import MIN_SIDE_REACH, fit_side_profile, frame_side_reach
 from reconstruct.body.pose import BodyPose
@@ -102,9 +102,13 @@ def test_the_stretch_moves_only_that_side_and_its_cloth_follows_the_ring_not_the
     plain = build_garment_layer(body, hint)
     R, C = plain.grid_shape
     zs = plain.positions.numpy().reshape(R, C, 3)[:, 0, 2]
-    reach = np.where(np.arange(R) > R // 3, 0.25, 0.0)
+    knots = np.where(np.arange(R) > R // 3, 0.25, 0.0)
     swung = build_garment_layer(body, replace(hint, side_profile=tuple((float(z), float(a), 0.0)
-                                                                        for z, a in zip(zs, reach))))
+                                                                        for z, a in zip(zs, knots))))
+    # the step from 0 to 25 cm tapers above it at SIDE_PROFILE_SLOPE (a row-by-row reference)
+    reach = np.array([max([knots[r]] + [knots[j] - SIDE_PROFILE_SLOPE * abs(zs[r] - zs[j]) for j in range(R)])
+                      for r in range(R)])
+    assert 0 < reach[R // 3] < 0.25 and reach[0] == 0.0
     p0, p1 = plain.positions.double().reshape(R, C, 3), swung.positions.double().reshape(R, C, 3)
     assert torch.allclose(p1[..., 0].max(1).values - p0[..., 0].max(1).values, torch.as_tensor(reach), atol=1e-6)
     for f in (lambda p: p[..., 0].min(1).values, lambda p: p[..., 1].min(1).values,
@@ -127,6 +131,26 @@ def test_the_stretch_moves_only_that_side_and_its_cloth_follows_the_ring_not_the
     thigh_like = replace(swung, weights=w)
     assert abs(rise(thigh_like)) > 0.05, rise(thigh_like)
     assert abs(rise(swung)) < 0.5 * abs(rise(thigh_like)), (rise(swung), rise(thigh_like))
+
+
+def test_side_reach_never_falls_faster_than_the_slope(hint):
+    """A profile read row by row can drop to 0 within a row (the long-skirt photo: 32 cm to 0 between
+    rows 1.9 cm apart, where its slanted hem ended on that side), and the discs of those rows, scaled
+    by the grid's step, spanned the jump as needles. The rows below taper at ``SIDE_PROFILE_SLOPE``;
+    a profile within the slope is the knots' interpolation."""
+    zs = np.array([-0.70, -0.713, -0.727, -0.746, -0.751, -0.756, -0.761, -0.766, -0.771])
+    h = replace(hint, side_profile=tuple((float(z), float(a), 0.0) for z, a in
+                                         zip(zs, [0.277, 0.290, 0.318, 0, 0, 0, 0, 0, 0])))
+    z = np.linspace(-0.68, -0.80, 121)
+    left, right = h.side_reach(z)
+    drop = -np.diff(left) / -np.diff(z)  # metres of stretch lost per metre down
+    assert drop.max() <= SIDE_PROFILE_SLOPE + 1e-9
+    assert h.side_reach(zs[3:4])[0][0] > 0.2  # the row 1.9 cm under 32 cm keeps most of it
+    np.testing.assert_allclose(h.side_reach(zs)[0][3:], np.clip(0.318 - SIDE_PROFILE_SLOPE * (-0.727 - zs[3:]), 0, None))
+    assert left[-1] == 0.0 and (right == 0).all()  # tapered to nothing 6.4 cm below the last 32 cm
+    gentle = replace(hint, side_profile=((0.0, 0.1, 0.0), (-0.1, 0.3, 0.0), (-0.2, 0.25, 0.0)))
+    np.testing.assert_allclose(gentle.side_reach(np.array([0.0, -0.05, -0.1, -0.15, -0.2]))[0],
+                               [0.1, 0.2, 0.3, 0.275, 0.25])
 
 
 def test_the_profile_goes_through_a_checkpoint(body, hint):

@@ -65,6 +65,15 @@ GARMENT_PART_NAME = "garment"
 GARMENT_PART = len(PART_NAMES)
 AVATAR_PART_NAMES: tuple[str, ...] = (*PART_NAMES, GARMENT_PART_NAME)
 _HINT_FIELDS = ("top_z", "hem_z", "standoff_top", "standoff_hem")
+# metres per metre of height: the most a side profile's stretch falls from one height to the next
+# (``VolumeHint.side_reach``). A swung skirt's profile read row by row can drop to 0 within a row
+# where its slanted hem ends on that side, or where a row read nothing: the long-skirt photo's
+# left side fell from 32 cm to 0 between two rows 1.9 cm apart, and the discs of those rows, whose
+# scale follows the grid's step, spanned the 31 cm jump as 9 cm needles, drawn as dark spikes past
+# the hem from the side. Cloth hangs from where it was: the rows below taper at this slope and the
+# learned opacity empties those past the cloth. Measured rises on the swung skirts reach 5 (the
+# grey-skirt photo's waist, 7 cm over 1.4 cm) and are kept
+SIDE_PROFILE_SLOPE = 5.0
 _HINT_SIDE_FIELDS = ("side_left", "side_right")  # absent in checkpoints from before flaps: 0
 
 
@@ -95,7 +104,8 @@ class VolumeHint:
     # (canonical height, metres at the left, metres at the right) knots, heights decreasing: how far
     # the cloth reaches sideways past the ring at each height as the masks read it
     # (``layer_profile.fit_side_profile``: a skirt swung to one side, a coat cut wider than the flare);
-    # added to ``side_left`` / ``side_right`` row by row (interpolated, 0 outside the knots)
+    # added to ``side_left`` / ``side_right`` row by row (interpolated, 0 outside the knots, and
+    # never falling faster than ``SIDE_PROFILE_SLOPE`` metres per metre of height: ``side_reach``)
     side_profile: tuple[tuple[float, float, float], ...] = ()
 
     @property
@@ -118,13 +128,20 @@ class VolumeHint:
 
     def side_reach(self, zs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Metres each ring at canonical heights ``zs`` is stretched towards the body's left (+X) and
-        right: ``side_left`` / ``side_right`` plus ``side_profile`` interpolated (0 outside it)."""
+        right: ``side_left`` / ``side_right`` plus ``side_profile`` interpolated (0 outside it), raised
+        where it would fall faster than ``SIDE_PROFILE_SLOPE`` per metre of height away from a knot
+        (the upper envelope of cones of that slope on the knots)."""
         zs = np.asarray(zs, float)
         if not self.side_profile:
             return np.full(zs.shape, self.side_left), np.full(zs.shape, self.side_right)
         k = np.asarray(self.side_profile, float)[::-1]  # increasing heights for np.interp
-        return (self.side_left + np.interp(zs, k[:, 0], k[:, 1], left=0.0, right=0.0),
-                self.side_right + np.interp(zs, k[:, 0], k[:, 2], left=0.0, right=0.0))
+        gap = np.abs(zs.reshape(-1, 1) - k[None, :, 0])  # (Z, K) metres of height to each knot
+        out = []
+        for col, flap in ((1, self.side_left), (2, self.side_right)):
+            lin = np.interp(zs, k[:, 0], k[:, col], left=0.0, right=0.0)
+            cone = np.clip((k[None, :, col] - SIDE_PROFILE_SLOPE * gap).max(1), 0.0, None).reshape(zs.shape)
+            out.append(flap + np.maximum(lin, cone))
+        return out[0], out[1]
 
 
 @dataclass
