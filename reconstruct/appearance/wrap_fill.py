@@ -48,10 +48,10 @@ are the nearest seen or already filled ones of any part.
 
 Parts past the body's (``parts >= len(PART_NAMES)``): a garment layer's Gaussians
 (``garment_layer.GARMENT_PART``) are filled as one more part -- its band is the seen cloth round
-the tube in the same row (``layer_row_median``), its mirror the same row at theta -> pi - theta (through the part's
-coronal plane), kept only when the band of that row shows its colour (the layer's rows lie at one
-height each: ``layer_palette_rows``); it has no left/right twin and no part rule of the lists
-below applies to it.
+the tube in the same row (``layer_row_median``), its mirror the same row at theta -> pi - theta
+(through the part's coronal plane), kept only when the band of that row shows its colour (the
+layer's rows lie at one height each: ``layer_palette_rows``); it has no left/right twin and no
+part rule of the lists below applies to it.
 Given the layer's grid, a pattern that repeats round its tube (checks, plaid) is instead carried
 on round the unseen side by whole periods (``periodic_fill``).
 """
