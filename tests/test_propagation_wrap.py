@@ -119,6 +119,27 @@ def test_layer_low_fill_takes_its_own_rows_band():
     np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy().reshape(R, C, 3), old)
 
 
+def test_a_part_with_a_few_trusted_edge_gaussians_takes_its_twins_colours():
+    """A hand seen as a thin strip keeps a few trusted Gaussians after the erosion, at its edge and
+    darkened there; with fewer than ``twin_below`` of them it is filled from its twin (mirrored in
+    x), which shows its skin: the long-skirt photo's left hand came out dark red from behind."""
+    a, th = cylinder(radius=0.03, height=0.1, n_theta=24, n_z=12)
+    pos = np.r_[a + [0.3, 0, 0], a + [-0.3, 0, 0]]
+    parts = np.r_[np.full(len(a), PART_INDEX["hand.L"]), np.full(len(a), PART_INDEX["hand.R"])]
+    col = np.tile(SKIN, (len(pos), 1))
+    strip = np.abs(np.degrees(th)) < 10  # the left hand: one column of 12 trusted Gaussians
+    seen = np.r_[strip, seen_front(th)]
+    col[:len(a)][strip] = HAIR  # its trusted edge is dark
+    cfg = WrapFillConfig(smooth_sweeps=0)
+    assert cfg.k <= strip.sum() < cfg.twin_below  # the case the rule is for
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    back = np.r_[~strip, np.zeros(len(a), bool)]
+    np.testing.assert_allclose(out[back], np.tile(SKIN, (back.sum(), 1)), atol=1e-6)
+    # with the twin borrowed only below k (before), the dark edge is carried round
+    old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0, twin_below=0)).numpy()
+    assert np.abs(old[back] - SKIN).max(1).mean() > 0.3
+
+
 def test_emblem_reaching_one_side_is_left_out():
     pos, th = cylinder()
     col = np.tile(BLUE, (len(pos), 1))

@@ -97,6 +97,11 @@ class WrapFillConfig:
     # +0.07, wide trousers seed 2 -0.01, coat seed 1 -0.01, whose checks the periodic fill carries)
     layer_row_median: bool = True
     max_mirror_distance: float = 0.04  # metres: farther mirror matches are not used
+    # a part with fewer trusted Gaussians than this takes its left/right twin's (mirrored in x) when
+    # the twin has this many: a hand seen as a thin strip keeps a few of its edge's after the
+    # erosion, and their colours are the edge's (the long-skirt photo: 8 trusted on the left hand,
+    # 6 of them dark where it met the skirt, and its back came out dark red)
+    twin_below: int = 32
     smooth_sweeps: int = 2
     # parts the video never saw behind their centre (fewer than ``k`` reliably seen Gaussians
     # behind it: a photo, a video that never turned): their band is the silhouette's sides only,
@@ -312,11 +317,11 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         never_behind = (pos[src, 1] > centre_y).sum() < cfg.k
         front_only[todo] = never_behind
         src_pos = pos[src] if len(src) else np.zeros((0, 3))
-        if len(src) < cfg.k:  # borrow the left/right twin, mirrored in x
+        if len(src) < max(cfg.k, cfg.twin_below):  # borrow the left/right twin, mirrored in x
             twin = PART_INDEX.get(MIRROR.get(name, ""), -1)
             if twin >= 0 and twin != p:
                 tw = np.flatnonzero((parts == twin) & seen)
-                if len(tw) >= cfg.k:
+                if len(tw) >= max(cfg.k, cfg.twin_below):
                     src = tw
                     src_pos = pos[tw] * np.array([-1.0, 1.0, 1.0])
         if len(src) < cfg.k:
