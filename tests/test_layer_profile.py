@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from reconstruct.avatar.garment_layer import (SIDE_PROFILE_SLOPE, GarmentLayer, VolumeHint, build_garment_layer, garment_layer_for,
-                                              torso_top_height, volume_hint_from_masks)
+from reconstruct.avatar.garment_layer import (SIDE_PROFILE_SLOPE, GarmentLayer, VolumeHint, build_garment_layer,
+                                              garment_layer_for, torso_top_height, volume_hint_from_masks)
 from reconstruct.avatar.layer_profile import MIN_SIDE_REACH, fit_side_profile, frame_side_reach
 from reconstruct.body.pose import BodyPose
 from hint_scenes import clothing_scenes, with_mask

@@ -391,13 +391,15 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                 if hair.any():
                     covered = hair_covered(pos[todo], pos[hsrc], hair, centre)
         # 2. low-frequency fill along the wrap direction (same height)
-        low = _same_height_median(pos[todo], band_pos, band_col, cfg)
         if on_grid and cfg.layer_row_median:
             row_of = lambda i: (i - members[0]) // layer_grid[1]  # noqa: E731
-            in_row = _row_median(row_of(todo), pos[todo], row_of(src[band_idx]), band_pos, band_col,
-                                 row_of(src), src_pos, col[src], cfg.k)
-            ok = np.isfinite(in_row).all(1)
-            low[ok] = in_row[ok]
+            low = _row_median(row_of(todo), pos[todo], row_of(src[band_idx]), band_pos, band_col,
+                              row_of(src), src_pos, col[src], cfg.k)
+            rest = ~np.isfinite(low).all(1)  # rows with no seen Gaussian: the slab
+            if rest.any():
+                low[rest] = _same_height_median(pos[todo][rest], band_pos, band_col, cfg)
+        else:
+            low = _same_height_median(pos[todo], band_pos, band_col, cfg)
         if covered is not None and covered.any():
             low[covered] = _same_height_median(pos[todo][covered], pos[hsrc][hair], col[hsrc][hair], cfg)
         # 3. the mirrored colour, kept where the band shows that colour at a nearby height
