@@ -119,6 +119,35 @@ def test_layer_low_fill_takes_its_own_rows_band():
     np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy().reshape(R, C, 3), old)
 
 
+def test_layer_row_with_a_short_band_leaves_out_a_colour_seen_on_one_side(monkeypatch):
+    """A row whose band is short of ``k`` takes the nearest of its own seen Gaussians, but only in
+    colours the cloth shows on both sides at that height: the green-jacket photo's open front showed
+    the white shirt and collar at one flap's edge in its top rows, and the back took a white patch
+    there."""
+    from reconstruct.appearance import wrap_fill
+    R, C = 20, 92
+    GREEN = np.array([0.1, 0.3, 0.25])
+    th = 2 * np.pi * np.arange(C) / C - np.pi
+    z = 1.2 - 0.014 * np.arange(R)
+    pos = np.stack([np.broadcast_to(0.2 * np.sin(th), (R, C)), np.broadcast_to(-0.2 * np.cos(th), (R, C)),
+                    np.broadcast_to(z[:, None], (R, C))], -1).reshape(-1, 3)
+    deg = np.broadcast_to(np.degrees(th), (R, C))
+    col = np.tile(GREEN, (R, C, 1))
+    shirt = (np.arange(R)[:, None] < 6) & (deg > 60) & (deg <= 100)  # one side, at the seen edge
+    col[shirt] = WHITE
+    seen = (np.abs(deg) <= 100).reshape(-1)
+    parts = np.full(R * C, GARMENT_PART)
+    cfg = WrapFillConfig(smooth_sweeps=0, max_mirror_distance=0.0)  # the low-frequency fill alone
+    out = wrap_fill_colors(pos, parts, seen, col.reshape(-1, 3), None, cfg, layer_grid=(R, C, 1)).numpy()
+    back = ~seen
+    np.testing.assert_allclose(out[back], np.tile(GREEN, (back.sum(), 1)), atol=1e-6)
+    # colours from either side in the row's pool (before): the shirt's top rows are carried round
+    monkeypatch.setattr(wrap_fill, "_on_both_sides", lambda band_pos, *a: np.ones(len(band_pos), bool))
+    old = wrap_fill_colors(pos, parts, seen, col.reshape(-1, 3), None, cfg, layer_grid=(R, C, 1)).numpy()
+    top_back = back & (np.arange(R * C) // C < 6)
+    assert np.abs(old[top_back] - WHITE).max(1).min() < 0.05
+
+
 def test_a_part_with_a_few_trusted_edge_gaussians_takes_its_twins_colours():
     """A hand seen as a thin strip keeps a few trusted Gaussians after the erosion, at its edge and
     darkened there; with fewer than ``twin_below`` of them it is filled from its twin (mirrored in

@@ -393,8 +393,14 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         # 2. low-frequency fill along the wrap direction (same height)
         if on_grid and cfg.layer_row_median:
             row_of = lambda i: (i - members[0]) // layer_grid[1]  # noqa: E731
+            # a row whose band is short takes its seen Gaussians in colours the cloth shows on both
+            # sides at that height: the green-jacket photo's open front showed the white shirt
+            # and collar on one side only, and its top rows carried them onto the back
+            pool = _on_both_sides(src_pos, col[src], pos[members, 0].mean(), cfg)
+            if pool.sum() < cfg.k:
+                pool[:] = True
             low = _row_median(row_of(todo), pos[todo], row_of(src[band_idx]), band_pos, band_col,
-                              row_of(src), src_pos, col[src], cfg.k)
+                              row_of(src[pool]), src_pos[pool], col[src][pool], cfg.k)
             rest = ~np.isfinite(low).all(1)  # rows with no seen Gaussian: the slab
             if rest.any():
                 low[rest] = _same_height_median(pos[todo][rest], band_pos, band_col, cfg)
