@@ -627,3 +627,43 @@ def test_front_only_head_with_glasses_and_brows_takes_the_hair(monkeypatch):
     monkeypatch.setattr(hair, "CORE_AGREE", 0.0)
     off = wrap_fill_colors(pos, parts, seen, col, None).numpy()
     assert np.linalg.norm(off[back] - SKIN, axis=1).mean() < 0.1
+
+
+def test_front_only_head_whose_middle_is_mostly_hair_takes_the_face_from_the_hands():
+    # hair across two thirds of the face in strands (the red-dress photo: a laughing woman, her
+    # head bent, the crown and the hair over her cheeks seen, the face dotted): the middle's core
+    # votes for the hair's colour, and without a reference the back of the head is the face's skin.
+    # The seen hands show her skin: the cluster nearer to them is the face, and the back is hair
+    pos, th, seen, truth = front_only_head()
+    deg = np.degrees(th)
+    strands = (pos[:, 2] < 1.70) & (np.abs(deg) < 80) & (np.floor(deg / 10) % 3 != 0)
+    col = np.where(seen[:, None], truth, 0.5)
+    col[strands] = HAIR
+    hand_pos = np.random.default_rng(1).normal([0.3, 0.0, 1.0], 0.02, (64, 3))
+    pos = np.r_[pos, hand_pos]
+    col = np.r_[col, np.tile(SKIN * 0.9, (64, 1))]  # the hands a little shadowed
+    seen = np.r_[seen, np.ones(64, bool)]
+    parts = np.r_[np.full(len(th), PART_INDEX["head"]), np.full(64, PART_INDEX["hand.R"])]
+    back = np.r_[~seen[:len(th)] & (pos[:len(th), 2] < 1.68), np.zeros(64, bool)]
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
+    off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(hair_skin_from_hands=False)).numpy()
+    assert np.linalg.norm(off[back] - SKIN, axis=1).mean() < 0.1  # the case is real
+    # hands in black gloves tell nothing: the vote decides, as without them
+    gloved = col.copy()
+    gloved[len(th):] = 0.05
+    head = parts == PART_INDEX["head"]
+    np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen, gloved, None).numpy()[head], off[head])
+
+
+def test_skin_reference_is_a_warm_median_of_enough_hand_gaussians():
+    from reconstruct.appearance.hair import SKIN_MIN_COUNT, skin_reference
+    n = SKIN_MIN_COUNT
+    for tone in [(0.9, 0.7, 0.6), (0.45, 0.3, 0.22), (0.8, 0.55, 0.45)]:
+        np.testing.assert_allclose(skin_reference(np.tile(tone, (n, 1))), tone)
+    for glove in [(0.05, 0.05, 0.05), (0.5, 0.5, 0.5), (0.2, 0.6, 0.3), (0.2, 0.2, 0.6)]:
+        assert skin_reference(np.tile(glove, (n, 1))) is None
+    assert skin_reference(np.tile((0.9, 0.7, 0.6), (n - 1, 1))) is None
+    # the median, not the mean: a few dark edge Gaussians do not move it
+    cols = np.r_[np.tile((0.9, 0.7, 0.6), (n, 1)), np.zeros((n // 3, 3))]
+    np.testing.assert_allclose(skin_reference(cols), (0.9, 0.7, 0.6))

@@ -37,6 +37,17 @@ The rule, in canonical space (the body faces -Y, +Z up), on the head's seen Gaus
 Each such Gaussian takes the median colour of the nearest hair Gaussians at its height (the
 fill's same-height median), so a hat over hair keeps the hat above and the hair below.
 
+**The skin of the hands decides which cluster is the face** (``skin``, from ``skin_reference``).
+The middle of a photo's seen head is not always the face: a laughing woman with her head bent
+forward showed the crown and the hair over her cheeks, and the flags left the face dotted. The
+middle's core voted 20 to 4 for the dark cluster (shadowed strands, the open mouth), and the pale
+cluster -- her skin with the golden strands -- was taken for hair: the back of her head came out
+skin-coloured. The same person's hands show her skin. When the seen hands give a warm colour (R >=
+G >= B, R - B >= ``SKIN_WARMTH``: a gloved hand in black, grey or green does not), and one cluster's
+colour is nearer to it than ``SKIN_RATIO`` times the other's, that cluster is the face, provided it
+holds at least ``SKIN_MIN_MIDDLE`` of the middle (every Gaussian voting); then the middle's share
+test is not asked. Otherwise the vote decides, as above.
+
 **A head the video saw behind its centre** (the posterior band of the fill) uses step 1 only
 (``face_coloured``): the band's Gaussians in the face's colour cluster -- the ears and the skin
 behind the jaw, which a turning video sees just behind the coronal plane -- are left out of the
@@ -64,6 +75,25 @@ LLOYD_STEPS = 10  # iterations of the two-cluster split
 # other photos keep their decision (core shares 0.71-0.97, all-Gaussian shares 0.60-0.80)
 CORE_K = 16
 CORE_AGREE = 0.85
+# the hands' skin as the face's reference (module docstring): the reference must be warm (R >= G >=
+# B, R - B at least SKIN_WARMTH), one cluster nearer to it than SKIN_RATIO times the other, and
+# that cluster at least SKIN_MIN_MIDDLE of the middle's Gaussians. The red-dress photo: distances
+# 0.13 (pale cluster) and 0.67 (dark), the pale cluster 35 % of the middle
+SKIN_WARMTH = 0.05
+SKIN_RATIO = 0.5
+SKIN_MIN_MIDDLE = 0.25
+# seen hand Gaussians needed for a reference
+SKIN_MIN_COUNT = 32
+
+
+def skin_reference(hand_colours: np.ndarray) -> np.ndarray | None:
+    """(3,) median colour of a person's seen hand Gaussians ``hand_colours`` (H,3), or None when
+    there are fewer than ``SKIN_MIN_COUNT`` or the median is not warm (a glove)."""
+    if len(hand_colours) < SKIN_MIN_COUNT:
+        return None
+    ref = np.median(np.asarray(hand_colours, np.float64), axis=0)
+    r, g, b = ref
+    return ref if (r >= g >= b and r - b >= SKIN_WARMTH) else None
 
 
 def _core(src_pos: np.ndarray, label: np.ndarray) -> np.ndarray:
@@ -77,9 +107,10 @@ def _core(src_pos: np.ndarray, label: np.ndarray) -> np.ndarray:
 
 
 def _split(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,
-           min_share: float, k: int) -> tuple[np.ndarray, np.ndarray] | None:
+           min_share: float, k: int, skin: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """(hair, face) bool masks over the head's seen Gaussians (steps 1-2 of the module
-    docstring); None when the rule stands down."""
+    docstring; ``skin``: the hands' colour from ``skin_reference``, or None); None when the rule
+    stands down."""
     n = len(src_pos)
     if n < k:
         return None
@@ -102,7 +133,12 @@ def _split(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contras
     if votes.sum() < k:  # mixed finely all over the middle: every Gaussian votes
         votes = np.bincount(label[middle], minlength=2)
     face_label = int(votes.argmax())
-    if np.abs(centres[0] - centres[1]).max() <= contrast or votes[face_label] < FACE_SHARE * votes.sum():
+    by_skin = _face_by_skin(centres, skin, label[middle])
+    if np.abs(centres[0] - centres[1]).max() <= contrast:
+        return None
+    if by_skin is not None:
+        face_label = by_skin
+    elif votes[face_label] < FACE_SHARE * votes.sum():
         return None
     hair = rim & (label != face_label)
     if hair.sum() < max(k, min_share * n):
@@ -110,20 +146,33 @@ def _split(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contras
     return hair, label == face_label
 
 
+def _face_by_skin(centres: np.ndarray, skin: np.ndarray | None, middle_label: np.ndarray) -> int | None:
+    """The cluster the hands' skin says is the face (module docstring), or None when it does not
+    tell: no reference, no clear nearest cluster, or that cluster too rare in the middle."""
+    if skin is None or not len(middle_label):
+        return None
+    d = np.linalg.norm(centres - skin[None], axis=1)
+    near = int(d.argmin())
+    if d[near] > SKIN_RATIO * d[1 - near] or (middle_label == near).mean() < SKIN_MIN_MIDDLE:
+        return None
+    return near
+
+
 def hair_sources(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,
-                 min_share: float, k: int) -> np.ndarray:
+                 min_share: float, k: int, skin: np.ndarray | None = None) -> np.ndarray:
     """(S,) bool over the head's seen Gaussians (canonical positions ``src_pos``, colours
-    ``src_col``): those that show hair (rim, not face-coloured). All False when too few do."""
-    split = _split(src_pos, src_col, centre_x, contrast=contrast, min_share=min_share, k=k)
+    ``src_col``): those that show hair (rim, not face-coloured). All False when too few do.
+    ``skin``: the hands' colour (``skin_reference``), or None."""
+    split = _split(src_pos, src_col, centre_x, contrast=contrast, min_share=min_share, k=k, skin=skin)
     return np.zeros(len(src_pos), bool) if split is None else split[0]
 
 
 def face_coloured(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,
-                  min_share: float, k: int) -> np.ndarray:
+                  min_share: float, k: int, skin: np.ndarray | None = None) -> np.ndarray:
     """(S,) bool over the head's seen Gaussians: those in the face's colour cluster (skin: the
     face, the ears, a bare neck), when the head shows hair of its own colour; all False when the
-    rule stands down (a bald head, hair as light as the skin)."""
-    split = _split(src_pos, src_col, centre_x, contrast=contrast, min_share=min_share, k=k)
+    rule stands down (a bald head, hair as light as the skin). ``skin``: as ``hair_sources``."""
+    split = _split(src_pos, src_col, centre_x, contrast=contrast, min_share=min_share, k=k, skin=skin)
     return np.zeros(len(src_pos), bool) if split is None else split[1]
 
 

@@ -68,7 +68,7 @@ from scipy.spatial import cKDTree
 
 from ..avatar.garment_layer import GARMENT_PART
 from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
-from .hair import face_coloured, hair_covered, hair_sources
+from .hair import face_coloured, hair_covered, hair_sources, skin_reference
 from .periodic_fill import continue_layer
 
 
@@ -141,6 +141,11 @@ class WrapFillConfig:
     # ``hair_min_share`` of the seen head
     hair_contrast: float = 0.15
     hair_min_share: float = 0.1
+    # which of the head's two colour clusters is the face: the one nearer to the seen hands' skin
+    # when they tell (``hair.skin_reference``; the middle's vote otherwise). The red-dress photo's
+    # middle voted for her shadowed hair, and the back of her head came out skin-coloured
+    hair_skin_from_hands: bool = True
+    hair_skin_parts: tuple[str, ...] = ("hand.L", "hand.R")
     # parts whose band, when never seen behind their centre, leaves out the seen edge within
     # ``neckline_reach`` metres of the neck: over the top of a torso it runs along the neckline (a
     # V-neck's skin, a shirt between an open jacket's lapels), the front's own, and carried round
@@ -304,6 +309,10 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     front_only = np.zeros(len(pos), bool)  # unseen Gaussians of parts never seen behind their centre
     periodic = np.zeros(len(pos), bool)  # unseen Gaussians a repeating pattern was carried onto
     neckline_only: list[int] = []  # parts whose band was all neckline: filled from their neighbours
+    skin = None  # the hands' colour: which of the head's colour clusters is the face (``hair.py``)
+    if cfg.hair_skin_from_hands:
+        hands = np.isin(parts, [PART_INDEX[n] for n in cfg.hair_skin_parts if n in PART_INDEX]) & seen
+        skin = skin_reference(col[hands])
     for p in np.unique(parts):
         members = np.flatnonzero(parts == p)
         todo = members[~seen[members]]
@@ -375,10 +384,10 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             behind = band_pos[:, 1] > centre_y
             if behind.sum() >= cfg.k:
                 band_idx, band_pos, band_col = band_idx[behind], band_pos[behind], band_col[behind]
-                skin = face_coloured(src_pos, col[src], pos[members, 0].mean(), contrast=cfg.hair_contrast,
-                                     min_share=cfg.hair_min_share, k=cfg.k)[band_idx]
-                if (~skin).sum() >= cfg.k:
-                    band_pos, band_col = band_pos[~skin], band_col[~skin]
+                face = face_coloured(src_pos, col[src], pos[members, 0].mean(), contrast=cfg.hair_contrast,
+                                     min_share=cfg.hair_min_share, k=cfg.k, skin=skin)[band_idx]
+                if (~face).sum() >= cfg.k:
+                    band_pos, band_col = band_pos[~face], band_col[~face]
             else:
                 centre = np.array([pos[members, i].mean() for i in range(3)])
                 # the hair is read on the rim of the seen head: from ``hair_seen`` when given (the
@@ -387,7 +396,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                 if len(hsrc) < cfg.k:
                     hsrc = src
                 hair = hair_sources(pos[hsrc], col[hsrc], centre[0], contrast=cfg.hair_contrast,
-                                    min_share=cfg.hair_min_share, k=cfg.k)
+                                    min_share=cfg.hair_min_share, k=cfg.k, skin=skin)
                 if hair.any():
                     covered = hair_covered(pos[todo], pos[hsrc], hair, centre)
         # 2. low-frequency fill along the wrap direction (same height)
