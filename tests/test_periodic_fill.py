@@ -145,3 +145,24 @@ def test_one_band_seen_once_is_no_period():
     col2 = np.where(rep[None, :, None], np.array([0.9, 0.9, 0.9]), A * 0.4) + rng.normal(0, 0.02, (R, C, 3))
     got = tube_period(col2, front_half(R, C, 31))
     assert got is not None and abs(got - 23) < 0.5
+
+
+def test_a_pattern_seen_over_under_three_periods_is_no_period(monkeypatch):
+    """A pattern must be seen to repeat: the seen pairs two periods apart must be at least
+    ``REPEAT_SHARE`` of those half a period apart (a seen width of about three periods). A video
+    of a one-colour coat, seen over 39 columns from the front, read a period of 17.6 columns from
+    its button column and the open front's edges; the only pairs two periods apart were on the
+    plain flanks, and the buttons were carried round the back twice."""
+    from reconstruct.appearance import periodic_fill
+    R, C = 58, 92
+    seen = front_half(R, C, 19)  # 39 columns
+    wide = checks(R, C, 13.0)  # 3 periods seen, not quite (the estimate is 13.5)
+    assert tube_period(wide, seen) is None
+    out, done = continue_layer(wide.reshape(-1, 3), seen.reshape(-1), (R, C), 1)
+    assert not done.any()
+    got = tube_period(checks(R, C, 10.0), seen)  # 3.9 periods seen: a period
+    assert got is not None and abs(got - 10.0) < 1.0
+    # without the share (pairs two periods apart counted only against MIN_PAIRS) it was one
+    monkeypatch.setattr(periodic_fill, "REPEAT_SHARE", 0.0)
+    got = tube_period(wide, seen)
+    assert got is not None and abs(got - 13.0) < 1.0

@@ -28,7 +28,12 @@ How, per tube of the layer's (rows, cols) grid, on the reliably seen Gaussians:
    shirt between the flaps as one light band with cloth on either side, over less than two of
    any period: a shift of nearly the seen width pairs flap with flap (alike) and half of it
    shirt with flap (unlike), which alone reads as a period of ~23 columns, and carried round it
-   painted the back with shirt-white stripes.
+   painted the back with shirt-white stripes. Those pairs two periods apart must also be at least
+   ``REPEAT_SHARE`` as many as the pairs half a period apart, which asks for a seen width of about
+   three periods: a video of a one-colour coat seen over 39 columns (its front only) read a period
+   of 17.6 columns from its button column and the open front's edges (the pairs two periods apart
+   were 232, all on the two plain flanks, against 1,740 half a period apart), and carried the
+   buttons round onto the back twice.
 3. **The continuation.** Each unseen Gaussian of a row takes the colour (interpolated) ``k`` whole
    periods along the row, for the smallest ``k`` (either way round) that lands between two seen
    Gaussians of the same row.
@@ -46,6 +51,7 @@ FINEST = 2.0  # columns: periods measured down to this, so that a finer pattern 
 MIN_CONTRAST = 1.5  # msd(P/2) / msd(P): unlike half a period on, alike a period on
 MIN_VARIATION = 0.01  # msd(P/2): an RMS colour difference of 0.1 (summed over RGB) along the row
 MIN_PAIRS = 200  # seen pairs a shift must have to be measured
+REPEAT_SHARE = 0.4  # seen pairs two periods apart, against those half a period apart: seen repeating
 STEP = 0.05  # columns: the resolution of the period
 # msd under this is alike (an RMS colour difference of 0.03 summed over RGB, under the noise of
 # trained colours): the contrast of a noise-free pattern is not unbounded at whole multiples of
@@ -61,6 +67,11 @@ def _shifted(colors: np.ndarray, seen: np.ndarray, p: float) -> tuple[np.ndarray
     hi = (lo + 1) % C
     w = (q - np.floor(q))[None, :, None]
     return colors[:, lo] * (1 - w) + colors[:, hi] * w, seen[:, lo] & seen[:, hi]
+
+
+def shift_pairs(seen: np.ndarray, p: float) -> int:
+    """The number of seen Gaussians whose read ``p`` columns on is seen too."""
+    return int((_shifted(np.zeros(seen.shape + (3,)), seen, p)[1] & seen).sum())
 
 
 def shift_msd(colors: np.ndarray, seen: np.ndarray, p: float) -> float:
@@ -118,6 +129,9 @@ def tube_period(colors: np.ndarray, seen: np.ndarray) -> float | None:
     # against the layer's columns, and two periods on they are 1.4 times more alike, not 1.5
     twice = msd(2 * period)
     if not np.isfinite(twice) or msd(period / 2) <= twice:
+        return None
+    # and those pairs are not a few at the ends of a seen width under ~3 periods
+    if shift_pairs(seen, 2 * period) < REPEAT_SHARE * shift_pairs(seen, period / 2):
         return None
     return period
 
