@@ -132,14 +132,13 @@ def _split(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contras
     votes = np.bincount(label[middle & core], minlength=2)
     if votes.sum() < k:  # mixed finely all over the middle: every Gaussian votes
         votes = np.bincount(label[middle], minlength=2)
-    face_label = int(votes.argmax())
-    by_skin = _face_by_skin(centres, skin, label[middle])
     if np.abs(centres[0] - centres[1]).max() <= contrast:
         return None
-    if by_skin is not None:
-        face_label = by_skin
-    elif votes[face_label] < FACE_SHARE * votes.sum():
-        return None
+    face_label = _face_by_skin(centres, skin, label[middle])
+    if face_label is None:  # the hands do not tell: the middle's vote, if it is clear
+        face_label = int(votes.argmax())
+        if votes[face_label] < FACE_SHARE * votes.sum():
+            return None
     hair = rim & (label != face_label)
     if hair.sum() < max(k, min_share * n):
         return None

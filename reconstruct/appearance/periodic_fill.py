@@ -59,19 +59,25 @@ STEP = 0.05  # columns: the resolution of the period
 ALIKE = 1e-3
 
 
-def _shifted(colors: np.ndarray, seen: np.ndarray, p: float) -> tuple[np.ndarray, np.ndarray]:
-    """``colors`` (R,C,3) read ``p`` columns on (linear, wrapping), and where that read is seen."""
-    C = colors.shape[1]
+def _read_columns(C: int, p: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each of ``C`` columns round a tube, the two columns a read ``p`` columns on falls
+    between (wrapping) and the weight of the second."""
     q = np.arange(C) + p
     lo = np.floor(q).astype(np.int64) % C
-    hi = (lo + 1) % C
-    w = (q - np.floor(q))[None, :, None]
+    return lo, (lo + 1) % C, q - np.floor(q)
+
+
+def _shifted(colors: np.ndarray, seen: np.ndarray, p: float) -> tuple[np.ndarray, np.ndarray]:
+    """``colors`` (R,C,3) read ``p`` columns on (linear, wrapping), and where that read is seen."""
+    lo, hi, w = _read_columns(colors.shape[1], p)
+    w = w[None, :, None]
     return colors[:, lo] * (1 - w) + colors[:, hi] * w, seen[:, lo] & seen[:, hi]
 
 
 def shift_pairs(seen: np.ndarray, p: float) -> int:
     """The number of seen Gaussians whose read ``p`` columns on is seen too."""
-    return int((_shifted(np.zeros(seen.shape + (3,)), seen, p)[1] & seen).sum())
+    lo, hi, _ = _read_columns(seen.shape[1], p)
+    return int((seen & seen[:, lo] & seen[:, hi]).sum())
 
 
 def shift_msd(colors: np.ndarray, seen: np.ndarray, p: float) -> float:

@@ -326,11 +326,12 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         never_behind = (pos[src, 1] > centre_y).sum() < cfg.k
         front_only[todo] = never_behind
         src_pos = pos[src] if len(src) else np.zeros((0, 3))
-        if len(src) < max(cfg.k, cfg.twin_below):  # borrow the left/right twin, mirrored in x
+        twin_min = max(cfg.k, cfg.twin_below)
+        if len(src) < twin_min:  # borrow the left/right twin, mirrored in x
             twin = PART_INDEX.get(MIRROR.get(name, ""), -1)
             if twin >= 0 and twin != p:
                 tw = np.flatnonzero((parts == twin) & seen)
-                if len(tw) >= max(cfg.k, cfg.twin_below):
+                if len(tw) >= twin_min:
                     src = tw
                     src_pos = pos[tw] * np.array([-1.0, 1.0, 1.0])
         if len(src) < cfg.k:
