@@ -59,6 +59,12 @@ class Stage1Config(StageSettings):
     lambda_offset: float = 0.85
     lambda_scale: float = 0.03
     lambda_features: float = 1.0
+    # frames without a normal map (a user's photo or video): mean (1 - cos) between each decoded
+    # Gaussian's normal and its body texel's (or the garment layer's) normal, in place of the normal
+    # loss. Without it nothing holds a disc's orientation: fitted to one front view, discs at the
+    # silhouette turned to face the camera (long-skirt photo: layer normals 54 deg off at the 90th
+    # percentile, the hem's flipped), and from the side they showed edge-on as spikes and smears
+    lambda_normal_prior: float = 0.1
     # only with a garment layer (avatar.garment_layer; tight runs are unchanged): rendered alpha
     # against the frame's mask (mean square over the crop), so the layer's opacity fades where the
     # silhouette shows nothing; and the layer's sheet regulariser (mean squared relative change of
@@ -154,6 +160,8 @@ class Stage1Config(StageSettings):
         if self.lambda_layer_cover < 0 or self.layer_cover_inset < 0:
             raise ValueError(f"need lambda_layer_cover >= 0 and layer_cover_inset >= 0, found "
                              f"{self.lambda_layer_cover} and {self.layer_cover_inset}")
+        if self.lambda_normal_prior < 0:
+            raise ValueError(f"lambda_normal_prior must be >= 0, found {self.lambda_normal_prior}")
         if self.seen_min_weight is not None and self.seen_min_weight <= 0:
             raise ValueError(f"seen_min_weight must be > 0 (pixels) or None, found {self.seen_min_weight}")
         if self.fill_unseen_ring < 0:
@@ -171,7 +179,7 @@ class Stage1Config(StageSettings):
     def paper(cls, **kw) -> "Stage1Config":
         """The settings before the Stage I fidelity work (GaussianAvatar's schedule, every Gaussian
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
-        base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False,
+        base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False, lambda_normal_prior=0.0,
                     seen_on_person=False, seen_min_weight=None, layer_off_person=False, layer_through=False,
                     random_background=False,
                     avatar=AvatarConfig.paper())
@@ -192,6 +200,7 @@ class Stage1Config(StageSettings):
         d.setdefault("layer_off_person", False)  # recorded before the layer's fill left off-person Gaussians empty
         d.setdefault("layer_through", False)  # recorded before the layer's fill told the body through it from cloth
         d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
+        d.setdefault("lambda_normal_prior", 0.0)  # recorded before frames without normal maps had a normal prior
         d.setdefault("lambda_layer_cover", 0.0)  # recorded before the layer's cover prior existed
         if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed

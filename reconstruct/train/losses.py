@@ -25,3 +25,9 @@ def ssim_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 def mean_square(x: torch.Tensor) -> torch.Tensor:
     """The regulariser ||x||_F^2 / numel(x)."""
     return (x * x).mean()
+
+
+def normal_deviation(normals: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    """Mean (1 - cos) between unit ``normals`` (N,3) and unit ``reference`` normals (N,3): 0 when
+    they agree, 1 at a right angle, 2 flipped (the normal prior of frames without a normal map)."""
+    return (1.0 - (normals * reference).sum(-1)).mean()

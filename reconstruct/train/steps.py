@@ -141,6 +141,10 @@ class GivenViewStep(TrainingStep):
         if data.use_normals and tgt.normal is not None:
             terms["normal"] = L.mse(r.normal, tgt.normal)
             weights["normal"] = cfg.lambda_normal
+        elif cfg.lambda_normal_prior:
+            base = model.base_normals if canon.index is None else model.base_normals[canon.index]
+            terms["normal_prior"] = L.normal_deviation(canon.normals, base)
+            weights["normal_prior"] = cfg.lambda_normal_prior
         if trainer.lpips is not None:
             terms["lpips"] = trainer.lpips(r.rgb[None].clamp(0, 1), image[None]).mean()
             weights["lpips"] = cfg.lambda_lpips
