@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 SPLATS = ("disc", "sphere")
 GARMENT_LAYER_MODES = ("off", "auto", "on")
+DECODER_INITS = ("he", "torch")
 # metres between a garment layer's rows (docs/loose_clothing.md, "A finer layer")
 GARMENT_LAYER_STEP = 0.014
 
@@ -29,6 +30,11 @@ class AvatarConfig:
     trunk_layers: int = 8  # paper: 8-layer MLP, skip from the input into the 4th layer
     skip_layer: int = 4
     head_layers: int = 2  # each head is a 2-layer MLP
+    # the decoder's hidden weights: "he" (normal, std sqrt(2 / fan_in), zero biases) or "torch"
+    # (PyTorch's Linear default, std 1/sqrt(3 fan_in): every softplus layer shrank the spread across
+    # texels ~3x, so the decoder began giving every texel the same output and could stay so for
+    # hundreds of steps -- GaussianDecoder). Runs recorded before it, and paper(), load as "torch"
+    decoder_init: str = "he"
     offset_scale: float = 0.02  # metres per unit of the Δx head (GaussianAvatar)
     # Gaussian shape. "disc": flat, in the tangent plane of the (decoded) normal, axes along the UV
     # map's u and v steps, rotated with the body by LBS; "sphere": isotropic, identity rotation (paper)
@@ -79,7 +85,7 @@ class AvatarConfig:
         """The paper's Gaussians and the earlier defaults: isotropic, identity rotation, no scale
         floor, one decoded Gaussian per texel of a 128 x 128 map, no colour residual."""
         base = dict(gaussian_resolution=128, decode_resolution=None, splat="sphere", scale_floor=0.0,
-                    init_scale_factor=0.6, color_residual=False, garment_layer="off")
+                    init_scale_factor=0.6, color_residual=False, garment_layer="off", decoder_init="torch")
         return cls(**{**base, **kw})
 
     @property
@@ -95,6 +101,9 @@ class AvatarConfig:
             raise ValueError(f"AvatarConfig.decode_resolution must be at least 8 or None, found {self.decode_resolution}")
         if not 1 <= self.skip_layer < self.trunk_layers:
             raise ValueError(f"AvatarConfig.skip_layer must be in [1, {self.trunk_layers}), found {self.skip_layer}")
+        if self.decoder_init not in DECODER_INITS:
+            raise ValueError(f"AvatarConfig.decoder_init must be one of {', '.join(DECODER_INITS)}, "
+                             f"found {self.decoder_init!r}")
         if self.splat not in SPLATS:
             raise ValueError(f"AvatarConfig.splat must be one of {', '.join(SPLATS)}, found {self.splat!r}")
         if not 0 <= self.scale_floor < self.init_scale_factor < self.scale_range:

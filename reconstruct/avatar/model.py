@@ -140,7 +140,8 @@ class AvatarModel(nn.Module):
             self.register_buffer("texel_steps", steps.float(), persistent=False)  # (N,2) 3D length of one texel step along u, v
         C, Rf = config.feature_channels, config.feature_resolution
         self.features = nn.Parameter(torch.randn(1, C, Rf, Rf) * config.feature_init_std)
-        self.decoder = GaussianDecoder(2 * C + 2, config.hidden, config.trunk_layers, config.skip_layer, config.head_layers)
+        self.decoder = GaussianDecoder(2 * C + 2, config.hidden, config.trunk_layers, config.skip_layer, config.head_layers,
+                                       init=config.decoder_init)
         if config.color_residual:
             # per Gaussian, trained with the decoder (it lives in the decoder's parameter group)
             self.decoder.color_residual = nn.Parameter(torch.zeros(self.num_gaussians, 3))

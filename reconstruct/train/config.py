@@ -206,6 +206,8 @@ class Stage1Config(StageSettings):
             d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed
         if isinstance(d.get("avatar"), dict) and "garment_skin_sectors" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "garment_skin_sectors": 1}  # recorded before the sectors existed
+        if isinstance(d.get("avatar"), dict) and "decoder_init" not in d["avatar"]:
+            d["avatar"] = {**d["avatar"], "decoder_init": "torch"}  # recorded before the decoder's He init
         if isinstance(d.get("avatar"), dict) and "garment_clearance" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "garment_clearance": 0.0}  # recorded before the layer kept clear of the body
         if isinstance(d.get("avatar"), dict) and "garment_layer" not in d["avatar"]:
