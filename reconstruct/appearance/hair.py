@@ -128,14 +128,13 @@ def _split(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contras
     for _ in range(LLOYD_STEPS):
         label = np.linalg.norm(src_col[:, None] - centres[None], axis=2).argmin(1)
         centres = np.stack([src_col[label == j].mean(0) if (label == j).any() else centres[j] for j in (0, 1)])
-    core = _core(src_pos, label)
-    votes = np.bincount(label[middle & core], minlength=2)
-    if votes.sum() < k:  # mixed finely all over the middle: every Gaussian votes
-        votes = np.bincount(label[middle], minlength=2)
     if np.abs(centres[0] - centres[1]).max() <= contrast:
         return None
     face_label = _face_by_skin(centres, skin, label[middle])
     if face_label is None:  # the hands do not tell: the middle's vote, if it is clear
+        votes = np.bincount(label[middle & _core(src_pos, label)], minlength=2)
+        if votes.sum() < k:  # mixed finely all over the middle: every Gaussian votes
+            votes = np.bincount(label[middle], minlength=2)
         face_label = int(votes.argmax())
         if votes[face_label] < FACE_SHARE * votes.sum():
             return None

@@ -38,7 +38,7 @@ class GaussianDecoder(nn.Module):
             # (std 1/sqrt(3 fan_in)) shrank it ~3x per softplus layer: the colour head's spread
             # across texels was 1e-4 at the start, and trained runs stayed in that state (every texel
             # one offset, one scale) for 300-1350 steps before they left it, at a step that varied
-            for lin in [*self.trunk, *(m for h in self.heads.values() for m in h if isinstance(m, nn.Linear))]:
+            for lin in (m for m in self.modules() if isinstance(m, nn.Linear)):
                 nn.init.kaiming_normal_(lin.weight, nonlinearity="relu")
                 nn.init.zeros_(lin.bias)
             # ... but the colour starts about neutral (logits within ~0.01 of 0, as the default
