@@ -119,6 +119,63 @@ def test_layer_low_fill_takes_its_own_rows_band():
     np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy().reshape(R, C, 3), old)
 
 
+def _photo_layer(R=60, C=92, shade=0.0, seed=0, rows_per_stripe=4):
+    """``_striped_coat_layer`` seen as in a photo (to 85 degrees: never behind its centre), each
+    row lit a little differently (a random brightness within +-``shade``), with a dark scarf down
+    the middle of the front over rows 10-30 and darker folds on the front's sides."""
+    pos, col, _, _, green_row, GREEN = _striped_coat_layer(R, C, rows_per_stripe=rows_per_stripe)
+    col = col.reshape(R, C, 3).copy()
+    th = np.degrees(2 * np.pi * np.arange(C) / C - np.pi)
+    col[:, np.abs(th) < 12] = col[:, np.abs(th) >= 170][:, :1]  # no lining: the stripes all round
+    truth = col.copy()
+    col += np.random.default_rng(seed).uniform(-shade, shade, R)[:, None, None]
+    col[10:30, np.abs(th) < 15] = (0.1, 0.1, 0.5)  # the scarf
+    col[:, (np.abs(th) > 50) & (np.abs(th) < 60)] *= 0.7  # folds
+    seen = np.broadcast_to(np.abs(th) <= 85, (R, C)).reshape(-1)
+    return pos, np.clip(col, 0, 1).reshape(-1, 3), seen, truth, green_row
+
+
+def test_a_front_only_layer_is_filled_by_rows():
+    """A photo's layer (never seen behind its centre) takes its rows' seen medians round the back:
+    the stripes at their heights, none of the front's scarf or folds. The band, the mirror and the
+    200 nearest of a body part wash the stripes out."""
+    R, C = 60, 92
+    pos, col, seen, truth, green_row = _photo_layer(R, C)
+    parts = np.full(R * C, GARMENT_PART)
+    back = ~seen.reshape(R, C)
+    err = lambda out: np.abs(out.reshape(R, C, 3)[back] - truth[back]).max(1)  # noqa: E731
+    out = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(), layer_grid=(R, C, 1)).numpy()
+    old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(layer_profile_rows=0),
+                           layer_grid=(R, C, 1)).numpy()
+    # a stripe's edge rows are smoothed by the grid sweeps; the rest is the stripe's colour
+    inner = green_row & np.r_[False, green_row[:-1]] & np.r_[green_row[1:], False]
+    inner |= ~green_row & np.r_[False, ~green_row[:-1]] & np.r_[~green_row[1:], False]
+    mid = (back & inner[:, None])[back]
+    assert np.median(err(out)[mid]) < 0.01 and err(out)[mid].max() < 0.05
+    assert np.median(err(old)[mid]) > 0.05
+    np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
+
+
+def test_a_front_only_layers_rows_are_smoothed_where_alike():
+    """Shading from row to row (within the palette tolerance) is averaged down the layer; stripes
+    (further apart than it) are not."""
+    R, C = 60, 92
+    pos, col, seen, truth, green_row = _photo_layer(R, C, shade=0.05, rows_per_stripe=10)
+    parts = np.full(R * C, GARMENT_PART)
+    back = ~seen.reshape(R, C)
+    rows = lambda out: np.stack([out.reshape(R, C, 3)[r][back[r]].mean(0) for r in range(R)])  # noqa: E731
+    smooth = rows(wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0),
+                                   layer_grid=(R, C, 1)).numpy())
+    raw = rows(wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0, layer_profile_rows=1),
+                                layer_grid=(R, C, 1)).numpy())
+    same = green_row[1:] == green_row[:-1]  # neighbouring rows of one stripe
+    rough = lambda c: np.abs(np.diff(c, axis=0)).max(1)[same].mean()  # noqa: E731
+    assert rough(smooth) < 0.4 * rough(raw)
+    # the stripes stay two colours: every back row is nearer its own stripe's colour than the other's
+    own, other = truth[:, 0], truth[np.r_[10:R, 0:10], 0]
+    assert (np.abs(smooth - own).sum(1) < np.abs(smooth - other).sum(1)).all()
+
+
 def test_layer_row_with_a_short_band_leaves_out_a_colour_seen_on_one_side(monkeypatch):
     """A row whose band is short of ``k`` takes the nearest of its own seen Gaussians, but only in
     colours the cloth shows on both sides at that height: the green-jacket photo's open front showed
@@ -477,6 +534,34 @@ def test_front_only_part_back_is_smoothed_and_a_part_seen_behind_is_not():
             np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
         else:
             np.testing.assert_array_equal(out, off)
+
+
+def test_a_few_seen_gaussians_just_behind_the_centre_leave_a_part_front_only():
+    # the shaded torso seen to 80 degrees, and its top rows (the shoulders of a photo) to 100: 24
+    # seen Gaussians behind its centre, more than k, 1 % of those behind it. Still a front-only
+    # part: its back is smoothed as the plain 80-degree torso's is; counted by k alone it was not
+    pos, th = cylinder(n_theta=72, n_z=60)
+    rng = np.random.default_rng(0)
+    shade = rng.uniform(-0.15, 0.15, 60).repeat(72)
+    col = np.clip(np.tile([0.35, 0.4, 0.3], (len(pos), 1)) + shade[:, None], 0, 1)
+    parts = np.full(len(pos), PART_INDEX["torso"])
+    nb = cylinder_neighbours(72, 60)
+    deg = np.abs(np.degrees(th))
+    top = np.arange(len(pos)) >= 54 * 72  # the top 6 rows
+    seen = (deg <= 80) | (top & (deg <= 100))
+    assert ((deg > 90) & seen).sum() == 24
+    back = deg > 150
+    rough = lambda c: np.abs(np.diff(c[back].reshape(60, -1).mean(1))).mean()  # noqa: E731
+    out = wrap_fill_colors(pos, parts, seen, col, nb).numpy()
+    unsmoothed = wrap_fill_colors(pos, parts, seen, col, nb, WrapFillConfig(front_only_median=0)).numpy()
+    by_k_alone = wrap_fill_colors(pos, parts, seen, col, nb, WrapFillConfig(behind_share=0.0)).numpy()
+    assert rough(out) < 0.5 * rough(unsmoothed)
+    np.testing.assert_array_equal(by_k_alone, unsmoothed)
+    # seen to 100 degrees all the way up (11 % of those behind the centre) it is seen behind
+    seen_all = deg <= 100
+    np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen_all, col, nb).numpy(),
+                                  wrap_fill_colors(pos, parts, seen_all, col, nb,
+                                                   WrapFillConfig(front_only_median=0)).numpy())
 
 
 def test_part_with_nothing_seen_takes_the_nearest_filled_colours():
