@@ -12,8 +12,10 @@ trained without its normal maps it is a photo with an answer sheet for its back.
     # Stage I's finish (the seen recount and the unseen fills) run again on the checkpoint, in
     # memory, with the code as it is now; then the same evaluation. Nothing is written: a change
     # to the fills is compared on the same trained avatar
-    OMP_NUM_THREADS=1 python benchmarks/synthetic_photo.py refill RUN [RUN ...]
+    OMP_NUM_THREADS=1 python benchmarks/synthetic_photo.py refill RUN [RUN ...] [--set KEY=VALUE ...]
 
+``--set`` overrides Stage I settings for the finish (a run keeps the settings it recorded; a
+setting newer than the run is off for it, so give it here to measure it on an older run).
 ``refill`` prints one row per run (seen and unseen PSNR, and the unseen PSNR per azimuth, the
 mean over the view's frames). It works on any Stage I run folder, photos' and videos' alike (on a
 real photo's run it rereads the scene by the path the run recorded).
@@ -42,13 +44,19 @@ def train(argv: list[str]) -> int:
         Scene.has_normals = kept
 
 
-def refill(run: str) -> dict:
-    """Re-run Stage I's finish on ``run``'s checkpoint in memory and evaluate it."""
+def refill(run: str, overrides: list[str] | None = None) -> dict:
+    """Re-run Stage I's finish on ``run``'s checkpoint in memory (its Stage I settings with
+    ``overrides``, ``KEY=VALUE`` as ``--set`` takes them) and evaluate it."""
     import torch
 
+    from reconstruct import config as config_layer
     from reconstruct.run_folder import RunFolder
+    from reconstruct.train.config import Stage1Config
 
     trainer = RunFolder(run).resume()
+    if overrides:
+        sets = config_layer.parse_overrides(Stage1Config, overrides, "Stage I", "--set")
+        trainer.plan.settings = config_layer.with_overrides(trainer.plan.settings, sets)
     trainer.plan.finish(trainer)
     with torch.no_grad():
         rows, summary = trainer.evaluate()
@@ -71,8 +79,18 @@ def main(argv: list[str]) -> int:
     torch.set_num_threads(1)
     print("| run | seen | unseen | unseen by azimuth |")
     print("|---|---|---|---|")
-    for run in argv[1:]:
-        r = refill(run)
+    runs, sets, rest = [], [], list(argv[1:])
+    while rest:
+        a = rest.pop(0)
+        if a == "--set":
+            if not rest:
+                print("--set needs KEY=VALUE", file=sys.stderr)
+                return 2
+            sets.append(rest.pop(0))
+        else:
+            runs.append(a)
+    for run in runs:
+        r = refill(run, sets)
         azs = " ".join(f"{az:.0f}: {p:.2f}" for az, p in r["unseen_by_azimuth"].items())
         print(f"| {run} | {r['seen']:.3f} | {r['unseen']:.3f} | {azs} |")
     return 0

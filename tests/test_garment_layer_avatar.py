@@ -792,6 +792,62 @@ def test_layer_off_person_is_where_a_frame_shows_background(layered):
         t.data.targets[i] = saved
 
 
+def test_layer_seen_inside_is_seen_with_the_surface_facing_away_in_every_frame(layered):
+    """Against an independent reference (the layer's base normals posed by each Gaussian's own LBS
+    matrix in float64, the cosine to each training camera): a seen layer Gaussian whose surface
+    faced no camera was seen from inside; the tiny scene's front ones were not, its back ones
+    were; unseen ones are never counted."""
+    from reconstruct.train.unseen_fill import layer_seen_inside
+
+    t = layered
+    N, M = t.model.num_body, t.model.num_layer
+    saved = t.state.seen.clone()
+    try:
+        seen = torch.zeros_like(saved)
+        seen[N::2] = True  # every other layer Gaussian "seen", front and back alike
+        t.state.seen = seen
+        got = layer_seen_inside(t.state, t.data)
+        faced = torch.zeros(M, dtype=torch.bool)
+        for i in t.data.frames:
+            mats = t.model.lbs_matrices(t.state.frame_transforms(i)).detach().double()[N:]
+            n = torch.nn.functional.normalize((mats[:, :3, :3] @ t.model.base_normals[N:].double()[..., None])[..., 0], dim=1)
+            x = t.state.posed(i).means[N:].detach().double()
+            c = torch.as_tensor(t.data.targets[i].camera.center, dtype=torch.float64) - x
+            faced |= (c * n).sum(1) >= 0
+        assert torch.equal(got, seen[N:] & ~faced)
+        front = t.model.base_normals[N:, 1] < -0.5
+        back = t.model.base_normals[N:, 1] > 0.5
+        assert not got[front].any() and got[back & seen[N:]].float().mean() > 0.9
+    finally:
+        t.state.seen = saved
+
+
+def test_the_finish_unsees_layer_gaussians_seen_from_inside(tiny_scene, tiny_config, body):
+    """Stage I's finish: with ``layer_seen_inside`` the layer's back Gaussians marked seen become
+    unseen and take the fill; without it (older runs, ``paper()``) they stay seen."""
+    import dataclasses
+
+    from reconstruct.train.config import Stage1Config
+
+    N = None
+    counts = {}
+    for on in (True, False):
+        # the recount on the person is off: it would drop these untrained back Gaussians itself
+        cfg = dataclasses.replace(tiny_config, layer_seen_inside=on, seen_on_person=False)
+        t = _trainer(tiny_scene, cfg, _layer(body))
+        N = t.model.num_body
+        back = torch.zeros_like(t.state.seen)
+        back[N:] = t.model.base_normals[N:, 1] > 0.5
+        t.state.seen = t.state.seen | back
+        t.plan.finish(t)
+        counts[on] = int((t.state.seen & back).sum())
+    assert counts[True] == 0 and counts[False] > 0
+    assert Stage1Config().layer_seen_inside and not Stage1Config.paper().layer_seen_inside
+    old = Stage1Config().to_dict()
+    del old["layer_seen_inside"]
+    assert not Stage1Config.from_dict(old).layer_seen_inside
+
+
 def test_layer_gaussians_a_frame_shows_empty_keep_their_opacity(layered):
     """``empty`` flags leave those layer Gaussians at their learned opacity; the others are filled
     as without them; a wrong shape is named."""

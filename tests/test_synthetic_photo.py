@@ -72,3 +72,19 @@ def _paint_unseen_white(state):
         res = model.decoder.color_residual
         res.data[unseen] = ((8.0 - decoded[unseen]) / model.config.color_residual_gain).to(res.dtype)
     return int(unseen.sum())
+
+
+def test_refill_takes_stage1_overrides(photo_run, monkeypatch, capsys):
+    # the finish runs with the run's settings and the overrides: the fill is asked for the ring given
+    run, _ = photo_run
+    import reconstruct.train.plan as plan
+
+    rings = []
+    real = plan.fill_unseen_colors
+    monkeypatch.setattr(plan, "fill_unseen_colors", lambda state, **kw: rings.append(kw["keep_ring"]) or real(state, **kw))
+    refill(str(run))
+    refill(str(run), ["fill_unseen_ring=8"])
+    assert rings[1] == 8 and rings[0] != 8
+    assert main(["refill", str(run), "--set", "fill_unseen_ring=8"]) == 0 and rings[2] == 8
+    assert str(run) in capsys.readouterr().out
+    assert main(["refill", str(run), "--set"]) == 2

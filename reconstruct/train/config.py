@@ -123,6 +123,12 @@ class Stage1Config(StageSettings):
     # under it (the legs under a skirt, trousers under a coat: avatar/layer_through.py) are no
     # colour source for the layer's unseen side
     layer_through: bool = True
+    # ... and the seen layer Gaussians whose surface faced no training camera in any frame were
+    # seen from inside the garment (through a coat's open front, the inside of its back): their one
+    # colour is the lining's, and from behind it showed on the outside as a dark patch (coat seed
+    # 1: +0.47 dB unseen after Stage I). They are unseen, and the fill gives them the cloth's
+    # outer colours (train/unseen_fill.py, layer_seen_inside)
+    layer_seen_inside: bool = True
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # each given-view step composites its target on a uniformly random colour and renders over the
@@ -181,6 +187,7 @@ class Stage1Config(StageSettings):
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False, lambda_normal_prior=0.0,
                     seen_on_person=False, seen_min_weight=None, layer_off_person=False, layer_through=False,
+                    layer_seen_inside=False,
                     random_background=False,
                     avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
@@ -199,6 +206,7 @@ class Stage1Config(StageSettings):
         d.setdefault("seen_min_weight", None)  # recorded before the recount counted blended Gaussians
         d.setdefault("layer_off_person", False)  # recorded before the layer's fill left off-person Gaussians empty
         d.setdefault("layer_through", False)  # recorded before the layer's fill told the body through it from cloth
+        d.setdefault("layer_seen_inside", False)  # recorded before layer Gaussians seen from inside were unseen
         d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
         d.setdefault("lambda_normal_prior", 0.0)  # recorded before frames without normal maps had a normal prior
         d.setdefault("lambda_layer_cover", 0.0)  # recorded before the layer's cover prior existed

@@ -15,7 +15,7 @@ from ..appearance.wrap_fill import grazing_rule_for
 from .seen_recount import keep_seen_on_person, person_coverage
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (fill_unseen_colors, fill_unseen_layer_opacity, layer_faced_training, layer_off_person,
-                          layer_reached, layer_through)
+                          layer_reached, layer_seen_inside, layer_through)
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
 # which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its
@@ -99,6 +99,13 @@ class Stage1Plan(StagePlan):
             # the layer's opacity first: the colours of the body under the cloth follow the cloth
             # where it is opaque (``layer_cover``)
             n_layer, ring_trained = 0, None
+            if state.model.layer is not None and s.layer_seen_inside:
+                inside = layer_seen_inside(state, context.data)
+                if inside.any():
+                    seen = state.seen.clone()
+                    seen[state.model.num_body:] &= ~inside.to(seen.device)
+                    state.seen = seen
+                    notes.append(f"{int(inside.sum())} garment-layer Gaussians seen only from inside the garment are unseen")
             if state.model.layer is not None:
                 faced = layer_faced_training(state, context.data)
                 trained = faced.clone()

@@ -156,6 +156,25 @@ def layer_faced_training(state: AvatarState, data: TrainingData, *, min_cos: flo
     return _in_some_frame(state, data, faced)
 
 
+def layer_seen_inside(state: AvatarState, data: TrainingData) -> torch.Tensor:
+    """(M,) bool: the seen garment-layer Gaussians (``state.seen``) whose surface (the layer's own
+    normal, posed: ``posed_with_surface_normals``, not the learned one, which a normal map of the
+    lining turns towards the camera) faced no training camera in any frame: seen from inside the
+    garment, through an opening, so their colour is the inside's."""
+    model = state.model
+    N, M = model.num_body, model.num_layer
+    faced = torch.zeros(M, dtype=torch.bool)
+    if M == 0:
+        return faced
+    with torch.no_grad():
+        for i in data.frames:
+            posed, surface = state.posed_with_surface_normals(i)
+            means, normals = posed.means[N:].detach(), surface[N:].detach()
+            to_cam = torch.as_tensor(data.targets[i].camera.center, dtype=means.dtype, device=means.device) - means
+            faced |= ((to_cam * normals).sum(1) >= 0).cpu()
+    return state.seen.cpu().bool()[N:] & ~faced
+
+
 def layer_reached(state: AvatarState, total_max: torch.Tensor, min_weight: float) -> torch.Tensor:
     """(M,) bool: the garment-layer Gaussians the training rays reached: their blend weight in one
     training frame (``PersonCoverage.total_max``, all N+M Gaussians), divided by their opacity, is
