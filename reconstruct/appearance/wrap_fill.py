@@ -366,6 +366,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         n_seen_behind = (pos[src, 1] > centre_y).sum()
         never_behind = n_seen_behind < max(cfg.k, cfg.behind_share * (pos[members, 1] > centre_y).sum())
         front_only[todo] = never_behind
+        # a photo's garment layer: filled by rows, no band, no mirror (``layer_profile_rows``)
+        by_rows = on_grid and cfg.layer_row_median and never_behind and cfg.layer_profile_rows > 0
         src_pos = pos[src] if len(src) else np.zeros((0, 3))
         twin_min = max(cfg.k, cfg.twin_below)
         if len(src) < twin_min:  # borrow the left/right twin, mirrored in x
@@ -450,7 +452,6 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             pool = _on_both_sides(src_pos, col[src], pos[members, 0].mean(), cfg)
             if pool.sum() < cfg.k:
                 pool[:] = True
-            by_rows = never_behind and cfg.layer_profile_rows > 0  # ``layer_profile_rows``
             if by_rows:
                 rows_s, pos_s, col_s = row_of(src[pool]), src_pos[pool], col[src][pool]
                 low = _row_median(row_of(todo), pos[todo], rows_s, pos_s, col_s, rows_s, pos_s, col_s, len(src))
@@ -472,8 +473,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         dist, idx = cKDTree(src_pos).query(query)
         mirrored = col[src][idx]
         keep = dist <= cfg.max_mirror_distance
-        if name in cfg.no_mirror_parts or (on_grid and cfg.layer_row_median and never_behind
-                                           and cfg.layer_profile_rows > 0):
+        if name in cfg.no_mirror_parts or by_rows:
             keep[:] = False
         if no_mirror is not None:
             keep &= ~no_mirror[todo]

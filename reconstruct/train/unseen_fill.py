@@ -30,6 +30,10 @@ layer's grid (the same height round the tube; the nearest row with any where a r
 cloth seen at the front at a height is cloth at the back at that height, and rows the front made
 empty (past the hem) stay empty.
 
+A layer Gaussian seen only from inside the garment (through a coat's open front: its surface
+faced no training camera, ``layer_seen_inside``) is unseen before the fill: its one colour is the
+lining's, which from outside drew a dark patch on the back.
+
 Stage II starts from this avatar and recomputes its own pseudo-colours from the same trusted
 seen Gaussians, so the fill changes where Stage II starts, not where it is pulled to."""
 
