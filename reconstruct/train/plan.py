@@ -99,14 +99,12 @@ class Stage1Plan(StagePlan):
             # the layer's opacity first: the colours of the body under the cloth follow the cloth
             # where it is opaque (``layer_cover``)
             n_layer, ring_trained = 0, None
-            if state.model.layer is not None and s.layer_seen_inside:
-                inside = layer_seen_inside(state, context.data)
-                if inside.any():
-                    seen = state.seen.clone()
-                    seen[state.model.num_body:] &= ~inside.to(seen.device)
-                    state.seen = seen
-                    notes.append(f"{int(inside.sum())} garment-layer Gaussians seen only from inside the garment are unseen")
             if state.model.layer is not None:
+                if s.layer_seen_inside:
+                    inside = layer_seen_inside(state, context.data)
+                    if inside.any():
+                        state.seen[state.model.num_body:] &= ~inside.to(state.seen.device)
+                        notes.append(f"{int(inside.sum())} garment-layer Gaussians seen only from inside the garment are unseen")
                 faced = layer_faced_training(state, context.data)
                 trained = faced.clone()
                 if coverage is not None:

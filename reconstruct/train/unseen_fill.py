@@ -134,9 +134,11 @@ _EMPTY_LAYER_OPACITY = 0.1
 _HEM_RUN = 0.03  # metres under a hem row whose trained cloth must all be below one half
 
 
-def _in_some_frame(state: AvatarState, data: TrainingData, flag) -> torch.Tensor:
-    """(M,) bool: the garment-layer Gaussians for which ``flag(posed, target)`` ((M,) bool from the
-    frame's posed layer Gaussians and its ``FrameTarget``) holds in some training frame."""
+def _in_some_frame(state: AvatarState, data: TrainingData, flag, *, surface: bool = False) -> torch.Tensor:
+    """(M,) bool: the garment-layer Gaussians for which ``flag(means, normals, target)`` ((M,) bool
+    from the frame's posed layer Gaussians and its ``FrameTarget``) holds in some training frame.
+    ``normals``: the learned ones, posed; with ``surface``, the layer's own surface normals, posed
+    (``AvatarState.posed_with_surface_normals``)."""
     model = state.model
     N, M = model.num_body, model.num_layer
     out = torch.zeros(M, dtype=torch.bool)
@@ -144,9 +146,19 @@ def _in_some_frame(state: AvatarState, data: TrainingData, flag) -> torch.Tensor
         return out
     with torch.no_grad():
         for i in data.frames:
-            posed = state.posed(i)
-            out |= torch.as_tensor(flag(posed.means[N:].detach(), posed.normals[N:].detach(), data.targets[i])).cpu()
+            posed, surface_normals = state.posed_with_surface_normals(i, surface=surface)
+            normals = posed.normals if surface_normals is None else surface_normals
+            out |= torch.as_tensor(flag(posed.means[N:].detach(), normals[N:].detach(), data.targets[i])).cpu()
     return out
+
+
+def _facing(min_cos: float):
+    """The ``flag`` of ``_in_some_frame`` that holds where the cosine between the normal and the
+    direction to the frame's camera is at least ``min_cos``."""
+    def faced(means, normals, target):
+        to_cam = torch.as_tensor(target.camera.center, dtype=means.dtype, device=means.device) - means
+        return (to_cam * normals).sum(1) / to_cam.norm(dim=1).clamp_min(1e-9) >= min_cos
+    return faced
 
 
 def layer_faced_training(state: AvatarState, data: TrainingData, *, min_cos: float = 0.2) -> torch.Tensor:
@@ -154,10 +166,7 @@ def layer_faced_training(state: AvatarState, data: TrainingData, *, min_cos: flo
     between the posed normal and the direction to the camera at least ``min_cos``): those whose
     opacity training could have set, opaque cloth or empty air (a Gaussian the alpha loss made
     transparent is no first hit, so the seen flags cannot tell it from one never trained)."""
-    def faced(means, normals, target):
-        to_cam = torch.as_tensor(target.camera.center, dtype=means.dtype, device=means.device) - means
-        return (to_cam * normals).sum(1) / to_cam.norm(dim=1).clamp_min(1e-9) >= min_cos
-    return _in_some_frame(state, data, faced)
+    return _in_some_frame(state, data, _facing(min_cos))
 
 
 def layer_seen_inside(state: AvatarState, data: TrainingData) -> torch.Tensor:
@@ -165,18 +174,8 @@ def layer_seen_inside(state: AvatarState, data: TrainingData) -> torch.Tensor:
     normal, posed: ``posed_with_surface_normals``, not the learned one, which a normal map of the
     lining turns towards the camera) faced no training camera in any frame: seen from inside the
     garment, through an opening, so their colour is the inside's."""
-    model = state.model
-    N, M = model.num_body, model.num_layer
-    faced = torch.zeros(M, dtype=torch.bool)
-    if M == 0:
-        return faced
-    with torch.no_grad():
-        for i in data.frames:
-            posed, surface = state.posed_with_surface_normals(i)
-            means, normals = posed.means[N:].detach(), surface[N:].detach()
-            to_cam = torch.as_tensor(data.targets[i].camera.center, dtype=means.dtype, device=means.device) - means
-            faced |= ((to_cam * normals).sum(1) >= 0).cpu()
-    return state.seen.cpu().bool()[N:] & ~faced
+    faced = _in_some_frame(state, data, _facing(0.0), surface=True)
+    return state.seen.cpu().bool()[state.model.num_body:] & ~faced
 
 
 def layer_reached(state: AvatarState, total_max: torch.Tensor, min_weight: float) -> torch.Tensor:
