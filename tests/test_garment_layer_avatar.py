@@ -958,3 +958,33 @@ def test_a_layer_decoded_at_every_other_node_interpolates_its_outputs(body, laye
     assert float(m.layer_features.grad.abs().sum()) > 0
     with pytest.raises(ValueError, match="garment_decode_every must be an integer in"):
         _config(garment_decode_every=0)
+
+
+def test_layer_training_views_is_the_three_tests_in_one_pass_over_the_frames(layered, monkeypatch):
+    """The finish's one pass gives what ``layer_faced_training``, ``layer_seen_inside`` and
+    ``layer_off_person`` give one by one, and poses each training frame once (not three times)."""
+    from reconstruct.train.unseen_fill import (layer_faced_training, layer_off_person, layer_seen_inside,
+                                               layer_training_views)
+
+    t = layered
+    N = t.model.num_body
+    saved = t.state.seen.clone()
+    try:
+        seen = torch.zeros_like(saved)
+        seen[N::2] = True
+        t.state.seen = seen
+        one = {"faced": layer_faced_training(t.state, t.data), "seen_inside": layer_seen_inside(t.state, t.data),
+               "off_person": layer_off_person(t.state, t.data)}
+        calls = []
+        real = type(t.state).posed_with_surface_normals
+        monkeypatch.setattr(type(t.state), "posed_with_surface_normals",
+                            lambda self, i, surface=True: calls.append(i) or real(self, i, surface=surface))
+        got = layer_training_views(t.state, t.data, seen_inside=True, off_person=True)
+        assert sorted(calls) == sorted(t.data.frames)
+        assert got.keys() == one.keys()
+        for k in one:
+            assert torch.equal(got[k], one[k]), k
+        assert one["seen_inside"].any() and one["faced"].any()
+        assert set(layer_training_views(t.state, t.data, seen_inside=False, off_person=False)) == {"faced"}
+    finally:
+        t.state.seen = saved

@@ -14,8 +14,8 @@ from .config import Stage1Config, StageSettings
 from ..appearance.wrap_fill import grazing_rule_for
 from .seen_recount import keep_seen_on_person, person_coverage
 from .steps import GivenViewStep, TrainingStep
-from .unseen_fill import (fill_unseen_colors, fill_unseen_layer_opacity, layer_faced_training, layer_off_person,
-                          layer_reached, layer_seen_inside, layer_through)
+from .unseen_fill import (fill_unseen_colors, fill_unseen_layer_opacity, layer_reached, layer_through,
+                          layer_training_views)
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
 # which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its
@@ -100,12 +100,13 @@ class Stage1Plan(StagePlan):
             # where it is opaque (``layer_cover``)
             n_layer, ring_trained = 0, None
             if state.model.layer is not None:
-                if s.layer_seen_inside:
-                    inside = layer_seen_inside(state, context.data)
-                    if inside.any():
-                        state.seen[state.model.num_body:] &= ~inside.to(state.seen.device)
-                        notes.append(f"{int(inside.sum())} garment-layer Gaussians seen only from inside the garment are unseen")
-                faced = layer_faced_training(state, context.data)
+                views = layer_training_views(state, context.data, seen_inside=s.layer_seen_inside,
+                                             off_person=s.layer_off_person)
+                inside = views.get("seen_inside")
+                if inside is not None and inside.any():
+                    state.seen[state.model.num_body:] &= ~inside.to(state.seen.device)
+                    notes.append(f"{int(inside.sum())} garment-layer Gaussians seen only from inside the garment are unseen")
+                faced = views["faced"]
                 trained = faced.clone()
                 if coverage is not None:
                     trained |= layer_reached(state, coverage.total_max, s.seen_min_weight)
@@ -117,7 +118,7 @@ class Stage1Plan(StagePlan):
                     # take the cloth's opacity
                     shaped = faced | layer_reached(state, coverage.total_max, _RING_MIN_REACH)
                     ring_trained = torch.cat([torch.ones(state.model.num_body, dtype=torch.bool), shaped.cpu().bool()])
-                empty = layer_off_person(state, context.data) if s.layer_off_person else None
+                empty = views.get("off_person")
                 if s.layer_through:  # no colour source for the layer's unseen side
                     through = layer_through(state, context.data)
                     if through is not None and through.any():

@@ -134,21 +134,25 @@ _EMPTY_LAYER_OPACITY = 0.1
 _HEM_RUN = 0.03  # metres under a hem row whose trained cloth must all be below one half
 
 
-def _in_some_frame(state: AvatarState, data: TrainingData, flag, *, surface: bool = False) -> torch.Tensor:
-    """(M,) bool: the garment-layer Gaussians for which ``flag(means, normals, target)`` ((M,) bool
-    from the frame's posed layer Gaussians and its ``FrameTarget``) holds in some training frame.
-    ``normals``: the learned ones, posed; with ``surface``, the layer's own surface normals, posed
-    (``AvatarState.posed_with_surface_normals``)."""
+def _in_some_frame(state: AvatarState, data: TrainingData, flags: dict) -> dict[str, torch.Tensor]:
+    """{name: (M,) bool}: for each of ``flags`` ({name: (flag, surface)}), the garment-layer
+    Gaussians for which ``flag(means, normals, target)`` ((M,) bool from the frame's posed layer
+    Gaussians and its ``FrameTarget``) holds in some training frame. ``normals``: the learned ones,
+    posed; with ``surface``, the layer's own surface normals, posed
+    (``AvatarState.posed_with_surface_normals``). One pass over the frames poses each once."""
     model = state.model
     N, M = model.num_body, model.num_layer
-    out = torch.zeros(M, dtype=torch.bool)
+    out = {name: torch.zeros(M, dtype=torch.bool) for name in flags}
     if M == 0:
         return out
+    surface = any(on_surface for _, on_surface in flags.values())
     with torch.no_grad():
         for i in data.frames:
             posed, surface_normals = state.posed_with_surface_normals(i, surface=surface)
-            normals = posed.normals if surface_normals is None else surface_normals
-            out |= torch.as_tensor(flag(posed.means[N:].detach(), normals[N:].detach(), data.targets[i])).cpu()
+            means = posed.means[N:].detach()
+            for name, (flag, on_surface) in flags.items():
+                normals = surface_normals if on_surface else posed.normals
+                out[name] |= torch.as_tensor(flag(means, normals[N:].detach(), data.targets[i])).cpu()
     return out
 
 
@@ -161,12 +165,33 @@ def _facing(min_cos: float):
     return faced
 
 
-def layer_faced_training(state: AvatarState, data: TrainingData, *, min_cos: float = 0.2) -> torch.Tensor:
+def _off_person(margin: int):
+    """The ``flag`` of ``_in_some_frame`` that holds where the posed centre lands on the background
+    (``layer_off_person``)."""
+    def off(means, normals, target):
+        mask = target.mask.cpu().numpy() > 0.5
+        if margin > 0:
+            mask = binary_dilation(mask, iterations=margin)
+        h, w = mask.shape
+        uv, z = target.camera.project(means.cpu().double().numpy())
+        u, v = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        on = np.zeros(len(u), bool)
+        on[inside] = mask[v[inside], u[inside]]
+        return (z > 0) & ~on
+    return off
+
+
+_FACED_MIN_COS = 0.2
+_OFF_PERSON_MARGIN = 2
+
+
+def layer_faced_training(state: AvatarState, data: TrainingData, *, min_cos: float = _FACED_MIN_COS) -> torch.Tensor:
     """(M,) bool: the garment-layer Gaussians that faced a training camera in some frame (the cosine
     between the posed normal and the direction to the camera at least ``min_cos``): those whose
     opacity training could have set, opaque cloth or empty air (a Gaussian the alpha loss made
     transparent is no first hit, so the seen flags cannot tell it from one never trained)."""
-    return _in_some_frame(state, data, _facing(min_cos))
+    return _in_some_frame(state, data, {"faced": (_facing(min_cos), False)})["faced"]
 
 
 def layer_seen_inside(state: AvatarState, data: TrainingData) -> torch.Tensor:
@@ -174,8 +199,33 @@ def layer_seen_inside(state: AvatarState, data: TrainingData) -> torch.Tensor:
     normal, posed: ``posed_with_surface_normals``, not the learned one, which a normal map of the
     lining turns towards the camera) faced no training camera in any frame: seen from inside the
     garment, through an opening, so their colour is the inside's."""
-    faced = _in_some_frame(state, data, _facing(0.0), surface=True)
-    return state.seen.cpu().bool()[state.model.num_body:] & ~faced
+    surface_faced = _in_some_frame(state, data, {"surface": (_facing(0.0), True)})["surface"]
+    return state.seen.cpu().bool()[state.model.num_body:] & ~surface_faced
+
+
+def layer_off_person(state: AvatarState, data: TrainingData, *, margin: int = _OFF_PERSON_MARGIN) -> torch.Tensor:
+    """(M,) bool: the garment-layer Gaussians whose posed centre lands on the background in some
+    training frame: in front of the camera, and outside the frame's crop or more than ``margin``
+    pixels off its mask. Nothing opaque can stand between such a Gaussian and the camera (the
+    mask is empty there), so the frame shows it is empty air, whichever way its normal faces:
+    the rings of a layer stretched sideways for a flap, seen edge-on past the flap's outer end."""
+    return _in_some_frame(state, data, {"off": (_off_person(margin), False)})["off"]
+
+
+def layer_training_views(state: AvatarState, data: TrainingData, *, seen_inside: bool,
+                         off_person: bool) -> dict[str, torch.Tensor]:
+    """What the finish reads from the training frames about the garment layer, in one pass over
+    them: ``faced`` (``layer_faced_training``), and with the switches ``seen_inside``
+    (``layer_seen_inside``) and ``off_person`` (``layer_off_person``); (M,) bool each."""
+    flags = {"faced": (_facing(_FACED_MIN_COS), False)}
+    if seen_inside:
+        flags["surface"] = (_facing(0.0), True)
+    if off_person:
+        flags["off_person"] = (_off_person(_OFF_PERSON_MARGIN), False)
+    out = _in_some_frame(state, data, flags)
+    if seen_inside:
+        out["seen_inside"] = state.seen.cpu().bool()[state.model.num_body:] & ~out.pop("surface")
+    return out
 
 
 def layer_reached(state: AvatarState, total_max: torch.Tensor, min_weight: float) -> torch.Tensor:
@@ -194,26 +244,6 @@ def layer_reached(state: AvatarState, total_max: torch.Tensor, min_weight: float
         return torch.zeros(0, dtype=torch.bool)
     opacity = model.opacities().detach().cpu().double()[N:]
     return (total_max[N:].double() / opacity.clamp_min(1e-6)) >= min_weight
-
-
-def layer_off_person(state: AvatarState, data: TrainingData, *, margin: int = 2) -> torch.Tensor:
-    """(M,) bool: the garment-layer Gaussians whose posed centre lands on the background in some
-    training frame: in front of the camera, and outside the frame's crop or more than ``margin``
-    pixels off its mask. Nothing opaque can stand between such a Gaussian and the camera (the
-    mask is empty there), so the frame shows it is empty air, whichever way its normal faces:
-    the rings of a layer stretched sideways for a flap, seen edge-on past the flap's outer end."""
-    def off(means, normals, target):
-        mask = target.mask.cpu().numpy() > 0.5
-        if margin > 0:
-            mask = binary_dilation(mask, iterations=margin)
-        h, w = mask.shape
-        uv, z = target.camera.project(means.cpu().double().numpy())
-        u, v = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
-        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        on = np.zeros(len(u), bool)
-        on[inside] = mask[v[inside], u[inside]]
-        return (z > 0) & ~on
-    return _in_some_frame(state, data, off)
 
 
 @torch.no_grad()
