@@ -960,6 +960,71 @@ def test_a_layer_decoded_at_every_other_node_interpolates_its_outputs(body, laye
         _config(garment_decode_every=0)
 
 
+def _float64_inside(t, i: int) -> torch.Tensor:
+    """(N+M,) bool, the reference for ``layer_seen_from_inside`` in frame ``i``: the layer's base
+    normals posed by each Gaussian's own LBS matrix in float64, pointing away from the camera."""
+    N = t.model.num_body
+    mats = t.model.lbs_matrices(t.state.frame_transforms(i)).detach().double()
+    n = (mats[:, :3, :3] @ t.model.base_normals.double()[..., None])[..., 0]
+    x = (mats[:, :3, :3] @ t.model.base_positions.double()[..., None])[..., 0] + mats[:, :3, 3]
+    c = torch.as_tensor(t.data.targets[i].camera.center, dtype=torch.float64) - x
+    out = (c * n).sum(1) < 0
+    out[:N] = False
+    return out
+
+
+def test_layer_seen_from_inside_is_the_far_side_of_the_layer(layered):
+    """Against the float64 reference, for all Gaussians and for a subset (a culled decode): only
+    layer Gaussians, the back of the skirt for the tiny scene's front camera and never its front."""
+    t = layered
+    m = t.model
+    N = m.num_body
+    i = t.data.frames[0]
+    mats = m.lbs_matrices(t.state.frame_transforms(i))
+    cam = t.data.targets[i].camera.center
+    ref = _float64_inside(t, i)
+    got = m.layer_seen_from_inside(mats, cam)
+    assert torch.equal(got, ref)
+    index = torch.arange(N - 50, m.num_gaussians, 3)
+    assert torch.equal(m.layer_seen_from_inside(mats, cam, index), ref[index])
+    assert not got[:N].any()
+    front = m.base_normals[N:, 1] < -0.5
+    back = m.base_normals[N:, 1] > 0.5
+    assert not got[N:][front].any() and got[N:][back].all()
+
+
+def test_stage2_given_steps_colour_the_layer_only_from_outside(layered, monkeypatch):
+    """``layer_colour_outside``: the given-view loss sends no gradient to the colour of a layer
+    Gaussian the view sees from inside (its per-Gaussian colour residual), and the same gradient as
+    without the switch to every other Gaussian; without it the inside ones get one too. Stage II
+    has it on; Stage II settings recorded before it are off."""
+    import dataclasses
+
+    from reconstruct.stage2.config import Stage2Config
+    from reconstruct.train import steps as steps_mod
+
+    t = layered
+    m = t.model
+    frame = t.data.frames[0]
+    monkeypatch.setattr(t, "next_frame", lambda: frame)
+    cfg = dataclasses.replace(t.config, random_background=False)
+    grads = {}
+    for on in (True, False):
+        step = steps_mod.GivenViewStep(cfg, marks_seen=False, layer_colour_outside=on)
+        m.zero_grad(set_to_none=True)
+        out = step(t)
+        sum(out.weights[k] * v for k, v in out.terms.items()).backward()
+        grads[on] = m.decoder.color_residual.grad.detach().abs().sum(1).clone()
+    inside = _float64_inside(t, frame)
+    assert inside.sum() > 10
+    assert torch.all(grads[True][inside] == 0)
+    assert (grads[False][inside] > 0).float().mean() > 0.5  # the back of the layer shows through its front
+    torch.testing.assert_close(grads[True][~inside], grads[False][~inside])
+    assert Stage2Config().layer_colour_outside
+    assert not Stage2Config.from_dict({k: v for k, v in Stage2Config().to_dict().items()
+                                       if k != "layer_colour_outside"}).layer_colour_outside
+
+
 def test_layer_training_views_is_the_three_tests_in_one_pass_over_the_frames(layered, monkeypatch):
     """The finish's one pass gives what ``layer_faced_training``, ``layer_seen_inside`` and
     ``layer_off_person`` give one by one, and poses each training frame once (not three times)."""

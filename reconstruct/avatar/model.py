@@ -468,6 +468,24 @@ class AvatarModel(nn.Module):
             keep[self.num_body:] = True
             return torch.nonzero(keep)[:, 0]
 
+    def layer_seen_from_inside(self, matrices: torch.Tensor, camera_center, index: torch.Tensor | None = None) -> torch.Tensor:
+        """(K,) bool over the Gaussians ``index`` (all N+M when None; LBS ``matrices`` of all of
+        them): the garment-layer ones whose posed surface normal -- the layer's own, not the learned
+        one -- points away from the camera, so that the view sees them from inside the garment."""
+        with torch.no_grad():
+            ids = torch.arange(self.num_gaussians, device=matrices.device) if index is None else index
+            out = torch.zeros(len(ids), dtype=torch.bool, device=matrices.device)
+            layer = ids >= self.num_body
+            if not bool(layer.any()):
+                return out
+            lid = ids[layer]
+            M = matrices.detach()[lid]
+            x = apply_points(M, self.base_positions[lid])
+            n = apply_normals(M, self.base_normals[lid])
+            c = torch.as_tensor(np.asarray(camera_center), dtype=x.dtype, device=x.device)
+            out[layer] = ((c - x) * n).sum(1) < 0
+            return out
+
     def pose(self, canon: CanonicalGaussians, pose_transforms: torch.Tensor) -> PosedGaussians:
         # a subset's matrices lack the body Gaussians the layer is kept clear of; all N+M hold them
         subset = canon.index is not None and self._clears(canon)

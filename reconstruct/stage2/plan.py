@@ -73,7 +73,8 @@ class Stage2Plan(StagePlan):
         self.guidance_background = (torch.ones(3, device=trainer.device) if s2.prior == "zero123"
                                     else trainer.background)
         self.steps = {"given": GivenViewStep(trainer.config, marks_seen=False,
-                                             lambda_pose_features=s2.lambda_pose_features),
+                                             lambda_pose_features=s2.lambda_pose_features,
+                                             layer_colour_outside=s2.layer_colour_outside),
                       "canonical": GuidanceStep("canonical", self, self.prior),
                       "observation": GuidanceStep("observation", self, self.prior)}
         self.scene = trainer.scene

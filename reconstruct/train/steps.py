@@ -14,7 +14,7 @@ layer's sheet regulariser (docs/loose_clothing.md).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Callable, Protocol
 
 import torch
@@ -95,14 +95,18 @@ class GivenViewStep(TrainingStep):
     edges among the decoded Gaussians (``lambda_layer_spacing``).
     ``marks_seen``: first-hit Gaussians that face the camera become seen (Eq. 7, Stage I).
     ``layer_skinning``: the layer's skinning is trained (Stage I with ``lr_layer_skinning`` > 0), so
-    its prior is added (``lambda_layer_skinning``)."""
+    its prior is added (``lambda_layer_skinning``).
+    ``layer_colour_outside``: a garment-layer Gaussian the view sees from inside the garment
+    (``AvatarModel.layer_seen_from_inside``) gets no colour gradient from it (Stage II): it has one
+    colour for both sides, and its outside is the prior's."""
 
     kind = "given"
 
     def __init__(self, config: Stage1Config, *, marks_seen: bool = True, lambda_pose_features: float = 0.0,
-                 layer_skinning: bool = False) -> None:
+                 layer_skinning: bool = False, layer_colour_outside: bool = False) -> None:
         self.config = config
         self.marks_seen = marks_seen
+        self.layer_colour_outside = layer_colour_outside
         self.layer_skinning = layer_skinning and config.lr_layer_skinning > 0
         self.lambda_pose_features = lambda_pose_features
 
@@ -122,6 +126,9 @@ class GivenViewStep(TrainingStep):
         posed = model.pose_with(canon, matrices if index is None else matrices[index], model.clearance_matrices(matrices))
         if not gaussians_finite(posed):
             return StepOutcome(i, skipped=True)
+        if self.layer_colour_outside and model.num_layer:
+            inside = model.layer_seen_from_inside(matrices, tgt.camera.center, index)
+            posed = replace(posed, colors=torch.where(inside[:, None], posed.colors.detach(), posed.colors))
         background, image = data.background, tgt.image
         if cfg.random_background:
             # from the loop's own generator (saved in checkpoints), not torch's global one
