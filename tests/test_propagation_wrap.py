@@ -564,6 +564,31 @@ def test_a_few_seen_gaussians_just_behind_the_centre_leave_a_part_front_only():
                                                    WrapFillConfig(front_only_median=0)).numpy())
 
 
+def test_seen_behind_is_counted_on_what_a_garment_layer_leaves_visible():
+    # the same torso, its lower 54 rows under a coat's layer (``under_layer``: here each points at
+    # itself, so the final copy from the cloth changes nothing): the 24 seen behind its centre are
+    # 11 % of the 216 behind it a camera could see, so the part is seen behind (no front-only
+    # smoothing); counted on all 2,160 behind it (1 %) it was front-only, and a walk's coat took
+    # the front's buttons over its upper back
+    pos, th = cylinder(n_theta=72, n_z=60)
+    rng = np.random.default_rng(0)
+    shade = rng.uniform(-0.15, 0.15, 60).repeat(72)
+    col = np.clip(np.tile([0.35, 0.4, 0.3], (len(pos), 1)) + shade[:, None], 0, 1)
+    parts = np.full(len(pos), PART_INDEX["torso"])
+    nb = cylinder_neighbours(72, 60)
+    deg = np.abs(np.degrees(th))
+    top = np.arange(len(pos)) >= 54 * 72
+    seen = (deg <= 80) | (top & (deg <= 100))
+    under = np.where(top, -1, np.arange(len(pos)))
+    out = wrap_fill_colors(pos, parts, seen, col, nb, under_layer=under).numpy()
+    unsmoothed = wrap_fill_colors(pos, parts, seen, col, nb, WrapFillConfig(front_only_median=0),
+                                  under_layer=under).numpy()
+    np.testing.assert_array_equal(out, unsmoothed)
+    everywhere = wrap_fill_colors(pos, parts, seen, col, nb, under_layer=np.full(len(pos), -1)).numpy()
+    assert not np.array_equal(everywhere, wrap_fill_colors(pos, parts, seen, col, nb, WrapFillConfig(front_only_median=0),
+                                                           under_layer=np.full(len(pos), -1)).numpy())
+
+
 def test_part_with_nothing_seen_takes_the_nearest_filled_colours():
     # a neck the collar and the hair hid (no seen Gaussian): its back takes the filled hair of the
     # back of the head just above it, not the seen ear skin at the head's sides
