@@ -184,6 +184,7 @@ def _off_person(margin: int):
 
 _FACED_MIN_COS = 0.2
 _OFF_PERSON_MARGIN = 2
+_SURFACE_FACED = (_facing(0.0), True)  # the layer's own surface faced the camera (``layer_seen_inside``)
 
 
 def layer_faced_training(state: AvatarState, data: TrainingData, *, min_cos: float = _FACED_MIN_COS) -> torch.Tensor:
@@ -199,7 +200,12 @@ def layer_seen_inside(state: AvatarState, data: TrainingData) -> torch.Tensor:
     normal, posed: ``posed_with_surface_normals``, not the learned one, which a normal map of the
     lining turns towards the camera) faced no training camera in any frame: seen from inside the
     garment, through an opening, so their colour is the inside's."""
-    surface_faced = _in_some_frame(state, data, {"surface": (_facing(0.0), True)})["surface"]
+    return _seen_inside(state, _in_some_frame(state, data, {"surface": _SURFACE_FACED})["surface"])
+
+
+def _seen_inside(state: AvatarState, surface_faced: torch.Tensor) -> torch.Tensor:
+    """``layer_seen_inside`` from ``surface_faced``, the (M,) layer Gaussians whose own surface faced
+    some training camera."""
     return state.seen.cpu().bool()[state.model.num_body:] & ~surface_faced
 
 
@@ -219,12 +225,12 @@ def layer_training_views(state: AvatarState, data: TrainingData, *, seen_inside:
     (``layer_seen_inside``) and ``off_person`` (``layer_off_person``); (M,) bool each."""
     flags = {"faced": (_facing(_FACED_MIN_COS), False)}
     if seen_inside:
-        flags["surface"] = (_facing(0.0), True)
+        flags["surface"] = _SURFACE_FACED
     if off_person:
         flags["off_person"] = (_off_person(_OFF_PERSON_MARGIN), False)
     out = _in_some_frame(state, data, flags)
     if seen_inside:
-        out["seen_inside"] = state.seen.cpu().bool()[state.model.num_body:] & ~out.pop("surface")
+        out["seen_inside"] = _seen_inside(state, out.pop("surface"))
     return out
 
 
