@@ -512,17 +512,29 @@ def cylinder_neighbours(n_theta, n_z):
     return nb.reshape(-1, 4)
 
 
+def _shaded_torso():
+    """A torso (72 x 60 cylinder) of one cloth colour under uneven light -- a shade per row: folds
+    and light -- with its grid neighbours and each point's angle from the front in degrees:
+    (pos, col, parts, nb, deg)."""
+    pos, th = cylinder(n_theta=72, n_z=60)
+    rng = np.random.default_rng(0)
+    shade = rng.uniform(-0.15, 0.15, 60).repeat(72)
+    col = np.clip(np.tile([0.35, 0.4, 0.3], (len(pos), 1)) + shade[:, None], 0, 1)
+    return pos, col, np.full(len(pos), PART_INDEX["torso"]), cylinder_neighbours(72, 60), np.abs(np.degrees(th))
+
+
+def _seen_to_the_shoulders(deg):
+    """(top, seen): the top 6 rows of ``_shaded_torso``, and the torso seen to 80 degrees with those
+    rows (the shoulders of a photo) seen to 100."""
+    top = np.arange(len(deg)) >= 54 * 72
+    return top, (deg <= 80) | (top & (deg <= 100))
+
+
 def test_front_only_part_back_is_smoothed_and_a_part_seen_behind_is_not():
     # a torso seen from the front only (to 80 degrees) under uneven light: the sides' colours
     # vary from row to row. The back is smoother with the front-only sweeps; the same torso seen
     # to 100 degrees (behind its centre) is filled exactly as without them
-    pos, th = cylinder(n_theta=72, n_z=60)
-    rng = np.random.default_rng(0)
-    shade = rng.uniform(-0.15, 0.15, 60).repeat(72)  # a shade per row: folds and light
-    col = np.clip(np.tile([0.35, 0.4, 0.3], (len(pos), 1)) + shade[:, None], 0, 1)
-    parts = np.full(len(pos), PART_INDEX["torso"])
-    nb = cylinder_neighbours(72, 60)
-    deg = np.abs(np.degrees(th))
+    pos, col, parts, nb, deg = _shaded_torso()
     for seen, front_only in ((deg <= 80, True), (deg <= 100, False)):
         out = wrap_fill_colors(pos, parts, seen, col, nb).numpy()
         off = wrap_fill_colors(pos, parts, seen, col, nb, WrapFillConfig(front_only_median=0)).numpy()
@@ -540,15 +552,8 @@ def test_a_few_seen_gaussians_just_behind_the_centre_leave_a_part_front_only():
     # the shaded torso seen to 80 degrees, and its top rows (the shoulders of a photo) to 100: 24
     # seen Gaussians behind its centre, more than k, 1 % of those behind it. Still a front-only
     # part: its back is smoothed as the plain 80-degree torso's is; counted by k alone it was not
-    pos, th = cylinder(n_theta=72, n_z=60)
-    rng = np.random.default_rng(0)
-    shade = rng.uniform(-0.15, 0.15, 60).repeat(72)
-    col = np.clip(np.tile([0.35, 0.4, 0.3], (len(pos), 1)) + shade[:, None], 0, 1)
-    parts = np.full(len(pos), PART_INDEX["torso"])
-    nb = cylinder_neighbours(72, 60)
-    deg = np.abs(np.degrees(th))
-    top = np.arange(len(pos)) >= 54 * 72  # the top 6 rows
-    seen = (deg <= 80) | (top & (deg <= 100))
+    pos, col, parts, nb, deg = _shaded_torso()
+    _, seen = _seen_to_the_shoulders(deg)
     assert ((deg > 90) & seen).sum() == 24
     back = deg > 150
     rough = lambda c: np.abs(np.diff(c[back].reshape(60, -1).mean(1))).mean()  # noqa: E731
@@ -570,15 +575,8 @@ def test_seen_behind_is_counted_on_what_a_garment_layer_leaves_visible():
     # 11 % of the 216 behind it a camera could see, so the part is seen behind (no front-only
     # smoothing); counted on all 2,160 behind it (1 %) it was front-only, and a walk's coat took
     # the front's buttons over its upper back
-    pos, th = cylinder(n_theta=72, n_z=60)
-    rng = np.random.default_rng(0)
-    shade = rng.uniform(-0.15, 0.15, 60).repeat(72)
-    col = np.clip(np.tile([0.35, 0.4, 0.3], (len(pos), 1)) + shade[:, None], 0, 1)
-    parts = np.full(len(pos), PART_INDEX["torso"])
-    nb = cylinder_neighbours(72, 60)
-    deg = np.abs(np.degrees(th))
-    top = np.arange(len(pos)) >= 54 * 72
-    seen = (deg <= 80) | (top & (deg <= 100))
+    pos, col, parts, nb, deg = _shaded_torso()
+    top, seen = _seen_to_the_shoulders(deg)
     under = np.where(top, -1, np.arange(len(pos)))
     out = wrap_fill_colors(pos, parts, seen, col, nb, under_layer=under).numpy()
     unsmoothed = wrap_fill_colors(pos, parts, seen, col, nb, WrapFillConfig(front_only_median=0),
