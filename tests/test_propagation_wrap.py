@@ -9,7 +9,7 @@ import torch
 
 from reconstruct.avatar.garment_layer import GARMENT_PART
 from reconstruct.body.parts import PART_INDEX
-from reconstruct.appearance.wrap_fill import WrapFillConfig, wrap_fill_colors
+from reconstruct.appearance.wrap_fill import WrapFillConfig, column_middle, wrap_fill_colors
 
 RED, WHITE, BLUE, SKIN, HAIR, YELLOW = (np.array(c, float) for c in (
     (0.8, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.2, 0.8), (0.9, 0.7, 0.6), (0.2, 0.1, 0.05), (1.0, 0.9, 0.0)))
@@ -249,6 +249,51 @@ def test_checks_continue_with_their_left_right_phase():
     back = ~seen
     agree = np.linalg.norm(out[back] - truth[back], axis=1) < 1e-6
     assert agree.mean() > 0.9
+
+
+def test_checks_continue_on_a_leaning_tube_mirrored_through_its_columns():
+    """A torso leans and is deeper at the chest than at the shoulders: its front and back are not
+    mirror images through one plane. Mirrored through the middle of each column the back still
+    continues the front's checks; through the part's centre plane the mirror images fall more than
+    ``max_mirror_distance`` off the front at the top and the bottom, and the back takes the
+    same-height median there instead."""
+    pos, th = cylinder()
+    pos[:, 1] += 0.6 * (pos[:, 2] - 1.25)  # the axis leans 30 cm over the tube's height
+    period = 0.1
+    a = np.sin(pos[:, 2] * 2 * np.pi / period) > 0
+    b = np.sin(pos[:, 0] * 2 * np.pi / period) > 0
+    truth = np.where((a ^ b)[:, None], RED, WHITE)
+    seen = seen_front(th, 95)
+    back = ~seen
+    ends = back & (np.abs(pos[:, 2] - 1.25) > 0.15)  # where the centre plane is 9-15 cm off the middle
+    agree = {}
+    for column in (0.015, 0.0):
+        cfg = WrapFillConfig(smooth_sweeps=0, mirror_column=column)
+        out = wrap_fill_colors(pos, np.zeros(len(pos), int), seen, truth, None, cfg).numpy()
+        agree[column] = [(np.linalg.norm(out[r] - truth[r], axis=1) < 1e-6).mean() for r in (back, ends)]
+        np.testing.assert_allclose(out[seen], truth[seen].astype(np.float32), atol=1e-6)
+    assert agree[0.015][0] > 0.98 and agree[0.015][1] > 0.98
+    assert agree[0.0][1] < 0.8  # the same-height median there: 0.69
+
+
+def test_column_middle_against_a_brute_force_reference():
+    rng = np.random.default_rng(3)
+    part = rng.uniform([-0.2, -0.15, 0.0], [0.2, 0.15, 0.6], (400, 3))
+    query = rng.uniform([-0.25, -0.2, -0.05], [0.25, 0.2, 0.65], (300, 3))
+    radius, fallback = 0.04, -0.03
+    got = column_middle(part, query, radius, fallback)
+    want = np.full(len(query), fallback)
+    for i, q in enumerate(query):
+        near = np.hypot(part[:, 0] - q[0], part[:, 2] - q[2]) <= radius
+        if near.sum() >= 2:
+            want[i] = 0.5 * (part[near, 1].min() + part[near, 1].max())
+    assert (want == fallback).sum() > 5 and (want != fallback).sum() > 200  # both cases are exercised
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    # the depth of the query does not matter, only its x and height
+    shifted = query.copy()
+    shifted[:, 1] += 1.0
+    np.testing.assert_array_equal(column_middle(part, shifted, radius, fallback), got)
+    assert column_middle(part[:1], query, radius, fallback).tolist() == [fallback] * len(query)
 
 
 def test_no_mirror_regions_take_the_low_frequency_fill_only():
