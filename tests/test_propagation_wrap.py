@@ -632,6 +632,89 @@ def test_seen_behind_is_counted_on_what_a_garment_layer_leaves_visible():
                                                            under_layer=np.full(len(pos), -1)).numpy())
 
 
+def _coat_torso():
+    """A coat's torso (a tube, its sides from 60 to 110 degrees missing: the shoulders' sides
+    stretched and eroded, no seen surface within ``band`` of its upper back): its lower part under
+    the layer's cloth (unseen; each takes the colour of ``cloth``, a stand-in for the layer
+    Gaussian over it), a seen patch low on its back under the cloth's gap (so it is seen behind
+    its centre), its upper chest seen with red and white stripes by height and a front-only green
+    trim along the layer's top. The band is the trim row and the patch's edge: the upper back's
+    heights lie more than ``band_reach`` from both."""
+    GREEN = np.array([0.3, 0.8, 0.4])
+    pos, th = cylinder()
+    deg = np.abs(np.degrees(th))
+    keep = (deg <= 60) | (deg >= 110)
+    pos, deg = pos[keep], deg[keep]
+    z = pos[:, 2]
+    truth = np.where(stripes(z, 0.04)[:, None] > 0, WHITE, RED)
+    col = truth.copy()
+    col[(deg <= 60) & (z >= 1.3) & (z < 1.33)] = GREEN
+    patch = (deg >= 150) & (z < 1.1)
+    seen = ((deg <= 60) & (z >= 1.3)) | patch
+    cloth = int(np.flatnonzero(patch)[0])
+    under = np.where((z < 1.3) & ~patch, cloth, -1)
+    parts = np.full(len(pos), PART_INDEX["torso"])
+    return pos, deg, z, truth, col, seen, under, cloth, parts, GREEN
+
+
+def test_heights_the_band_does_not_reach_take_the_seen_part_at_their_height():
+    """With ``band_reach`` the upper back takes the seen chest's stripes of its height; without
+    it, the slab widened to the trim's height painted the trim's green all over."""
+    pos, deg, z, truth, col, seen, under, cloth, parts, GREEN = _coat_torso()
+    back = (deg >= 110) & (z >= 1.38)
+    phase = (z % 0.04) / 0.04
+    interior = back & ((np.abs(phase - 0.25) < 0.15) | (np.abs(phase - 0.75) < 0.15))
+    out = {reach: wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0, band_reach=reach),
+                                   under_layer=under).numpy() for reach in (0.04, 0.0)}
+    assert np.abs(out[0.04][interior] - truth[interior]).max() < 1e-6
+    assert (np.abs(out[0.0][interior] - GREEN).max(1) < 1e-6).mean() > 0.9  # the trim carried round
+    for o in out.values():
+        np.testing.assert_allclose(o[seen], col[seen].astype(np.float32), atol=1e-6)
+        hidden = under >= 0
+        np.testing.assert_allclose(o[hidden], np.broadcast_to(o[cloth], (int(hidden.sum()), 3)), atol=1e-6)
+
+
+def test_heights_the_band_does_not_reach_leave_out_the_necklines_skin():
+    """The same torso with a deep neckline: the seen chest above 1.44 m is skin, the hands' colour.
+    A back closes higher than a front, so the upper back does not take that skin (it takes the
+    stripes seen within ``band_reach`` below, or the band's green); with no hands to tell the
+    skin, it does."""
+    pos, deg, z, truth, col, seen, under, cloth, parts, GREEN = _coat_torso()
+    neckline = (deg <= 60) & (z >= 1.44)
+    col[neckline] = SKIN
+    hand = np.c_[np.linspace(0.5, 0.6, 40), np.zeros(40), np.full(40, 1.0)]  # a seen hand, away from the torso
+    pos, col = np.r_[pos, hand], np.r_[col, np.broadcast_to(SKIN, (40, 3))]
+    seen, under = np.r_[seen, np.ones(40, bool)], np.r_[under, np.full(40, -1)]
+    parts = np.r_[parts, np.full(40, PART_INDEX["hand.L"])]
+    top_back = np.r_[(deg >= 110) & (z >= 1.46), np.zeros(40, bool)]
+    out = {hands: wrap_fill_colors(pos, parts, seen, col, None,
+                                   WrapFillConfig(smooth_sweeps=0, hair_skin_from_hands=hands), under_layer=under).numpy()
+           for hands in (True, False)}
+    assert np.abs(out[True][top_back] - SKIN).max(1).min() > 0.3
+    assert (np.abs(out[False][top_back] - SKIN).max(1) < 1e-6).mean() > 0.9
+
+
+def test_heights_the_band_does_not_reach_leave_out_the_collars_edge():
+    """The same torso with a neck over its front's top: the seen chest's top rows, within
+    ``band`` of the neck, are the collar's edge (yellow here). The upper back at their heights does not take it; with the
+    neck's Gaussians given another part (no neck to measure from) it does."""
+    pos, deg, z, truth, col, seen, under, cloth, parts, GREEN = _coat_torso()
+    edge = (deg <= 60) & (z >= 1.485)
+    neck = pos[edge & (z >= 1.495)] + [0.0, 0.0, 0.01]  # a stand-in for the neck, over the front's top
+    col[edge] = YELLOW
+    n = len(neck)
+    pos, col = np.r_[pos, neck], np.r_[col, np.broadcast_to(SKIN, (n, 3))]
+    seen, under = np.r_[seen, np.ones(n, bool)], np.r_[under, np.full(n, -1)]
+    top_back = np.r_[(deg >= 110) & (z >= 1.49), np.zeros(n, bool)]
+    assert (np.linalg.norm(pos[:-n][edge][:, None] - neck[None], axis=2).min(1) <= WrapFillConfig().band).all()
+    out = {}
+    for part in ("neck", "head"):
+        p = np.r_[parts, np.full(n, PART_INDEX[part])]
+        out[part] = wrap_fill_colors(pos, p, seen, col, None, WrapFillConfig(smooth_sweeps=0), under_layer=under).numpy()
+    assert np.abs(out["neck"][top_back] - YELLOW).max(1).min() > 0.3
+    assert (np.abs(out["head"][top_back] - YELLOW).max(1) < 1e-6).mean() > 0.9
+
+
 def test_part_with_nothing_seen_takes_the_nearest_filled_colours():
     # a neck the collar and the hair hid (no seen Gaussian): its back takes the filled hair of the
     # back of the head just above it, not the seen ear skin at the head's sides

@@ -110,6 +110,14 @@ class WrapFillConfig:
     # +0.06, tight seeds 0-2 -0.005 / 0.00 / +0.20, wide trousers seeds 0 / 1 -0.05 / -0.04, the
     # one-frame photos 0.00 to +0.02). 0: the part's centre plane
     mirror_column: float = 0.015
+    # metres: an unseen Gaussian whose same-height slab holds fewer than ``k`` band Gaussians
+    # within this height (the band does not reach its height) takes the median of the ``k``
+    # nearest seen Gaussians of its part at its height -- colours the part shows on both sides --
+    # instead of a slab widened to the band's nearest heights. On coat seed 1 the torso's band was
+    # the chest's seen row along the layer's top (a green stripe, 3 cm high; the shoulders' seen
+    # tops lie more than ``band`` from the unseen back), and the plaid upper back above the layer
+    # took it at every height. 0: the band only
+    band_reach: float = 0.04
     # a part with fewer trusted Gaussians than this takes its left/right twin's (mirrored in x) when
     # the twin has this many: a hand seen as a thin strip keeps a few of its edge's after the
     # erosion, and their colours are the edge's (the long-skirt photo: 8 trusted on the left hand,
@@ -208,21 +216,43 @@ def _as_np(x, dtype=np.float64) -> np.ndarray:
     return np.asarray(x, dtype)
 
 
-def _same_height_median(pos_q: np.ndarray, pos_b: np.ndarray, col_b: np.ndarray, cfg: WrapFillConfig) -> np.ndarray:
+def _slab(z_sorted: np.ndarray, z: float, cfg: WrapFillConfig, widest: float | None = None) -> tuple[int, int, float]:
+    """The same-height slab round ``z`` in sorted heights: (lo, hi, half-height), the half-height
+    from ``slab`` doubled up to 8 times until the slab holds ``k`` (or all); with ``widest``, no
+    wider than that (then it may hold fewer than ``k``)."""
+    slab = cfg.slab
+    for _ in range(8):
+        lo, hi = np.searchsorted(z_sorted, z - slab), np.searchsorted(z_sorted, z + slab, side="right")
+        if hi - lo >= cfg.k or (lo == 0 and hi == len(z_sorted)) or (widest is not None and 2 * slab > widest):
+            break
+        slab *= 2
+    return lo, hi, slab
+
+
+def _same_height_median(pos_q: np.ndarray, pos_b: np.ndarray, col_b: np.ndarray, cfg: WrapFillConfig,
+                        seen_row: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Median colour of the ``k`` band Gaussians nearest to each query among those at the same
-    height (the slab widened x2 up to 8 times where it holds fewer than ``k``)."""
+    height (the slab widened x2 up to 8 times where it holds fewer than ``k``). ``seen_row``: the
+    part's seen (positions, colours); a query whose band slab must be wider than ``band_reach``
+    takes the ``k`` of these nearest at its height instead, when they hold ``k`` within it."""
     out = np.empty((len(pos_q), 3))
     if len(pos_b) == 0:
         return out * np.nan
     order = np.argsort(pos_b[:, 2])
     zb = pos_b[order, 2]
+    reach = cfg.band_reach if seen_row is not None and len(seen_row[0]) >= cfg.k else 0.0
+    if reach > 0:
+        s_order = np.argsort(seen_row[0][:, 2])
+        zs = seen_row[0][s_order, 2]
     for i, q in enumerate(pos_q):
-        slab = cfg.slab
-        for _ in range(8):
-            lo, hi = np.searchsorted(zb, q[2] - slab), np.searchsorted(zb, q[2] + slab, side="right")
-            if hi - lo >= cfg.k or (lo == 0 and hi == len(zb)):
-                break
-            slab *= 2
+        lo, hi, slab = _slab(zb, q[2], cfg)
+        if reach > 0 and (slab > reach or hi - lo < cfg.k):
+            s_lo, s_hi, s_slab = _slab(zs, q[2], cfg, widest=reach)
+            if s_hi - s_lo >= cfg.k and s_slab <= reach:
+                idx = s_order[s_lo:s_hi]
+                d = np.linalg.norm(seen_row[0][idx] - q, axis=1)
+                out[i] = np.median(seen_row[1][idx[np.argsort(d)[: cfg.k]]], axis=0)
+                continue
         idx = order[lo:hi]
         if len(idx) == 0:
             idx = order
@@ -505,7 +535,31 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             if rest.any():
                 low[rest] = _same_height_median(pos[todo][rest], band_pos, band_col, cfg)
         else:
-            low = _same_height_median(pos[todo], band_pos, band_col, cfg)
+            # heights the band does not reach (``band_reach``): the part's seen Gaussians there,
+            # in colours the part shows on both sides. Not where the band is narrowed on purpose:
+            # the head's posterior band (its ears are not its back), a part never seen behind
+            # its centre (a photo: its band is the whole seen edge)
+            seen_row = None
+            if not (posterior or never_behind):
+                row_pool = _on_both_sides(src_pos, col[src], pos[members, 0].mean(), cfg)
+                if row_pool.sum() < cfg.k:
+                    row_pool[:] = True
+                if name in cfg.neckline_parts:
+                    # nor the neckline: a back closes higher than a front, and at the heights of
+                    # the front's neckline the back is cloth. Left out: the seen surface within
+                    # ``band`` of the neck (the collar's edge, blended with the skin above it) and
+                    # the skin's colour below it (a V-neck). With the skin alone, tight seed 1 and
+                    # wide trousers seed 1 took a light line across the top of their shirts' backs
+                    far = np.ones(len(src), bool)
+                    neck = parts == PART_INDEX["neck"]
+                    if neck.any():
+                        far = cKDTree(pos[neck]).query(src_pos)[0] > cfg.band
+                    if skin is not None:
+                        far &= ~(np.abs(col[src] - skin) <= cfg.palette_tolerance).all(1)
+                    if (row_pool & far).sum() >= cfg.k:
+                        row_pool &= far
+                seen_row = (src_pos[row_pool], col[src][row_pool])
+            low = _same_height_median(pos[todo], band_pos, band_col, cfg, seen_row=seen_row)
         if covered is not None and covered.any():
             low[covered] = _same_height_median(pos[todo][covered], pos[hsrc][hair], col[hsrc][hair], cfg)
         # 3. the mirrored colour, kept where the band shows that colour at a nearby height
