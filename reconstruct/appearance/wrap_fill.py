@@ -514,15 +514,18 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                                     min_share=cfg.hair_min_share, k=cfg.k, skin=skin)
                 if hair.any():
                     covered = hair_covered(pos[todo], pos[hsrc], hair, centre)
-        # 2. low-frequency fill along the wrap direction (same height)
-        if on_grid and cfg.layer_row_median:
-            row_of = lambda i: (i - members[0]) // layer_grid[1]  # noqa: E731
-            # a row whose band is short takes its seen Gaussians in colours the cloth shows on both
-            # sides at that height: the green-jacket photo's open front showed the white shirt
-            # and collar on one side only, and its top rows carried them onto the back
+        # 2. low-frequency fill along the wrap direction (same height). Where the band falls short
+        # (a layer's row, a height it does not reach) the seen Gaussians stand in, in colours the
+        # part shows on both sides at that height: the green-jacket photo's open front showed the
+        # white shirt and collar on one side only, and its top rows carried them onto the back
+        fills_by_rows = on_grid and cfg.layer_row_median
+        pool = None
+        if fills_by_rows or not (posterior or never_behind):
             pool = _on_both_sides(src_pos, col[src], pos[members, 0].mean(), cfg)
             if pool.sum() < cfg.k:
                 pool[:] = True
+        if fills_by_rows:
+            row_of = lambda i: (i - members[0]) // layer_grid[1]  # noqa: E731
             if by_rows:
                 rows_s, pos_s, col_s = row_of(src[pool]), src_pos[pool], col[src][pool]
                 low = _row_median(row_of(todo), pos[todo], rows_s, pos_s, col_s, rows_s, pos_s, col_s, len(src))
@@ -535,15 +538,13 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             if rest.any():
                 low[rest] = _same_height_median(pos[todo][rest], band_pos, band_col, cfg)
         else:
-            # heights the band does not reach (``band_reach``): the part's seen Gaussians there,
-            # in colours the part shows on both sides. Not where the band is narrowed on purpose:
-            # the head's posterior band (its ears are not its back), a part never seen behind
-            # its centre (a photo: its band is the whole seen edge)
+            # heights the band does not reach (``band_reach``): the part's seen Gaussians there
+            # (``pool``). Not where the band is narrowed on purpose: the head's posterior band
+            # (its ears are not its back), a part never seen behind its centre (a photo: its band
+            # is the whole seen edge)
             seen_row = None
-            if not (posterior or never_behind):
-                row_pool = _on_both_sides(src_pos, col[src], pos[members, 0].mean(), cfg)
-                if row_pool.sum() < cfg.k:
-                    row_pool[:] = True
+            if pool is not None:
+                row_pool = pool
                 if name in cfg.neckline_parts:
                     # nor the neckline: a back closes higher than a front, and at the heights of
                     # the front's neckline the back is cloth. Left out: the seen surface within
@@ -557,7 +558,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                     if skin is not None:
                         far &= ~(np.abs(col[src] - skin) <= cfg.palette_tolerance).all(1)
                     if (row_pool & far).sum() >= cfg.k:
-                        row_pool &= far
+                        row_pool = row_pool & far
                 seen_row = (src_pos[row_pool], col[src][row_pool])
             low = _same_height_median(pos[todo], band_pos, band_col, cfg, seen_row=seen_row)
         if covered is not None and covered.any():
