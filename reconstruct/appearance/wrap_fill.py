@@ -246,19 +246,13 @@ def _same_height_median(pos_q: np.ndarray, pos_b: np.ndarray, col_b: np.ndarray,
         zs = seen_row[0][s_order, 2]
     for i, q in enumerate(pos_q):
         lo, hi, slab = _slab(zb, q[2], cfg)
+        pos_s, col_s, idx = pos_b, col_b, (order[lo:hi] if hi > lo else order)
         if reach > 0 and (slab > reach or hi - lo < cfg.k):
             s_lo, s_hi, s_slab = _slab(zs, q[2], cfg, widest=reach)
             if s_hi - s_lo >= cfg.k and s_slab <= reach:
-                idx = s_order[s_lo:s_hi]
-                d = np.linalg.norm(seen_row[0][idx] - q, axis=1)
-                out[i] = np.median(seen_row[1][idx[np.argsort(d)[: cfg.k]]], axis=0)
-                continue
-        idx = order[lo:hi]
-        if len(idx) == 0:
-            idx = order
-        d = np.linalg.norm(pos_b[idx] - q, axis=1)
-        near = idx[np.argsort(d)[: cfg.k]]
-        out[i] = np.median(col_b[near], axis=0)
+                pos_s, col_s, idx = seen_row[0], seen_row[1], s_order[s_lo:s_hi]
+        d = np.linalg.norm(pos_s[idx] - q, axis=1)
+        out[i] = np.median(col_s[idx[np.argsort(d)[: cfg.k]]], axis=0)
     return out
 
 
@@ -520,7 +514,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         # white shirt and collar on one side only, and its top rows carried them onto the back
         fills_by_rows = on_grid and cfg.layer_row_median
         pool = None
-        if fills_by_rows or not (posterior or never_behind):
+        if fills_by_rows or (cfg.band_reach > 0 and not (posterior or never_behind)):
             pool = _on_both_sides(src_pos, col[src], pos[members, 0].mean(), cfg)
             if pool.sum() < cfg.k:
                 pool[:] = True
