@@ -157,6 +157,9 @@ class GarmentLayer:
     spacing: torch.Tensor  # (N,) metres: distance to the grid neighbours (initial scale)
     grid_shape: tuple[int, int]
     hint: VolumeHint
+    # (N,) metres each point was moved along +Y after training (``layer_depth.match_layer_depth``,
+    # the end of Stage I); None: not moved. ``positions`` include the move
+    depth_shift: torch.Tensor | None = None
 
     @property
     def num_gaussians(self) -> int:
@@ -210,6 +213,7 @@ class GarmentLayer:
         return {"positions": self.positions.detach().cpu().clone(), "normals": self.normals.detach().cpu().clone(),
                 "tangents": self.tangents.detach().cpu().clone(), "weights": self.weights.detach().cpu().clone(),
                 "spacing": self.spacing.detach().cpu().clone(),
+                **({} if self.depth_shift is None else {"depth_shift": self.depth_shift.detach().cpu().clone()}),
                 "grid_shape": [int(self.grid_shape[0]), int(self.grid_shape[1])],
                 "hint": {**{k: float(getattr(self.hint, k)) for k in _HINT_FIELDS + _HINT_SIDE_FIELDS},
                          "two_legs": bool(self.hint.two_legs),
@@ -266,8 +270,14 @@ class GarmentLayer:
                                 side_profile=tuple(tuple(float(v) for v in k) for k in profile))
         except ValueError as exc:
             raise ValueError(f"{what}: {exc}") from None
+        shift = d.get("depth_shift")  # absent in checkpoints from before layer_depth_match, and before Stage I ends
+        if shift is not None and (not isinstance(shift, torch.Tensor) or tuple(shift.shape) != (n,)
+                                  or not torch.is_floating_point(shift)):
+            found = tuple(shift.shape) if isinstance(shift, torch.Tensor) else type(shift).__name__
+            raise ValueError(f"{what}: depth_shift must be a float tensor of shape ({n},), found {found}")
         return GarmentLayer(out["positions"], out["normals"], out["tangents"], w.float(), out["spacing"],
-                            (int(shape[0]), int(shape[1])), volume)
+                            (int(shape[0]), int(shape[1])), volume,
+                            None if shift is None else shift.float())
 
     def describe(self) -> str:
         R, C = self.grid_shape

@@ -129,6 +129,11 @@ class Stage1Config(StageSettings):
     # 1: +0.47 dB unseen after Stage I). They are unseen, and the fill gives them the cloth's
     # outer colours (train/unseen_fill.py, layer_seen_inside)
     layer_seen_inside: bool = True
+    # at the end of Stage I the garment layer's front and back move inward in depth by the amount
+    # training pulled its sides in more (a splat is drawn past its centre, and the front view's
+    # outline pulled the sides in; the front and back kept their built depth and stood some 6 mm
+    # too deep in profile: avatar/layer_depth.py)
+    layer_depth_match: bool = True
     # images
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # each given-view step composites its target on a uniformly random colour and renders over the
@@ -187,7 +192,7 @@ class Stage1Config(StageSettings):
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False, lambda_normal_prior=0.0,
                     seen_on_person=False, seen_min_weight=None, layer_off_person=False, layer_through=False,
-                    layer_seen_inside=False,
+                    layer_seen_inside=False, layer_depth_match=False,
                     random_background=False,
                     avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
@@ -207,6 +212,7 @@ class Stage1Config(StageSettings):
         d.setdefault("layer_off_person", False)  # recorded before the layer's fill left off-person Gaussians empty
         d.setdefault("layer_through", False)  # recorded before the layer's fill told the body through it from cloth
         d.setdefault("layer_seen_inside", False)  # recorded before layer Gaussians seen from inside were unseen
+        d.setdefault("layer_depth_match", False)  # recorded before the layer's front and back matched its sides' depth
         d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
         d.setdefault("lambda_normal_prior", 0.0)  # recorded before frames without normal maps had a normal prior
         d.setdefault("lambda_layer_cover", 0.0)  # recorded before the layer's cover prior existed

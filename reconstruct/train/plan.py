@@ -12,6 +12,7 @@ import torch
 
 from .config import Stage1Config, StageSettings
 from ..appearance.wrap_fill import grazing_rule_for
+from ..avatar.layer_depth import match_layer_depth
 from .seen_recount import keep_seen_on_person, person_coverage
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (fill_unseen_colors, fill_unseen_layer_opacity, layer_reached, layer_through,
@@ -81,7 +82,8 @@ class Stage1Plan(StagePlan):
     def finish(self, context: StepContext) -> str | None:
         """The seen flags are recounted on the person (``seen_on_person``, train/seen_recount.py),
         then the never-seen Gaussians take the wrap-around fill's colours and, on a garment layer, the
-        trained cloth's opacity at their height (``fill_unseen``)."""
+        trained cloth's opacity at their height (``fill_unseen``). Last, a garment layer's front and
+        back are moved in depth as far as training pulled its sides in (``layer_depth_match``)."""
         state, notes, s = context.state, [], self.settings
         # the avatar's blend weights on the training frames, once, for the recount and the layer
         coverage = (person_coverage(state, context.data, hit_threshold=s.hit_threshold, weights=True)
@@ -135,4 +137,9 @@ class Stage1Plan(StagePlan):
                 notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
             if n_layer:
                 notes.append(f"{n_layer} garment-layer Gaussians no training camera faced took the trained cloth's opacity at their height")
+        if s.layer_depth_match and state.model.layer is not None:
+            # after the fills, which read the layer's built positions
+            match = match_layer_depth(state.model)
+            if match is not None:
+                notes.append(match.describe())
         return "Stage I: " + "; ".join(notes) if notes else None
