@@ -109,6 +109,7 @@ def test_the_move_is_in_depth_at_front_and_back_only_and_once(body, monkeypatch)
     # inward: the front (normal -Y) moves to +Y, the back to -Y, by the pull times |n_y|
     np.testing.assert_allclose(moved[nb:, 1].numpy(), -(match.pulls[model.layer_rc[:, 0].numpy()] * n[:, 1].numpy()),
                                atol=1e-7)
+    np.testing.assert_allclose(match.shift, moved[nb:, 1].abs().numpy(), atol=1e-7)
     front, back = n[:, 1] < -0.95, n[:, 1] > 0.95
     assert float(moved[nb:][front, 1].min()) > 0.0035 and float(moved[nb:][back, 1].max()) < -0.0035
     assert float(moved[nb:][n[:, 0].abs() > 0.95, 1].abs().max()) < 0.0015
@@ -116,8 +117,10 @@ def test_the_move_is_in_depth_at_front_and_back_only_and_once(body, monkeypatch)
     assert "moved in" in match.describe()
     # a second finish on a finished avatar moves nothing more
     again = model.base_positions.clone()
-    match_layer_depth(model)
+    second = match_layer_depth(model)
     assert torch.allclose(model.base_positions, again, atol=1e-7)
+    assert second.shift.max() < 1e-6 and "already" in second.describe()
+    np.testing.assert_allclose(second.pulls, match.pulls, atol=1e-9)
     # the move travels with the layer's record
     state = model.layer.to_state()
     back_again = GarmentLayer.from_state(state)

@@ -30,8 +30,8 @@ MIN_PER_ROW = 4  # opaque Gaussians of each kind a row needs for its own pull
 
 @dataclass
 class DepthMatch:
-    """What ``match_layer_depth`` did: the pull per row (metres, (R,)) and the shift per layer
-    Gaussian (metres moved inward in depth, (M,))."""
+    """What ``match_layer_depth`` did: the pull per row (metres, (R,)) and how far each layer
+    Gaussian moved in depth by this call (metres, (M,); zeros when an earlier call made the move)."""
 
     pulls: np.ndarray
     shift: np.ndarray
@@ -76,9 +76,9 @@ def depth_pulls(normal_offsets: np.ndarray, normals: np.ndarray, rows: np.ndarra
 def match_layer_depth(model, *, max_pull: float = 0.01) -> DepthMatch | None:
     """Move the garment layer's built positions (``model.base_positions`` and ``model.layer.positions``)
     inward in depth by their row's ``depth_pulls`` times the depth component of their built normal.
-    The move is recorded (``GarmentLayer.depth_shift``) and measured from the positions before it,
-    so a second call (a finish run again on a finished checkpoint) moves nothing more. None without
-    a layer."""
+    The move is recorded (``GarmentLayer.depth_shift``); the pulls are read from the decoded offsets,
+    which the move does not change, so a second call (a finish run again on a finished checkpoint)
+    finds the same target and moves nothing more. None without a layer."""
     if model.layer is None or model.num_layer == 0:
         return None
     nb = model.num_body
@@ -91,7 +91,6 @@ def match_layer_depth(model, *, max_pull: float = 0.01) -> DepthMatch | None:
     opaque = (model.opacities()[nb:] > 0.5).cpu().numpy()
     pulls = depth_pulls(normal_offsets, normals.cpu().numpy(), rows, opaque, int(R), max_pull=max_pull)
     n_y = normals[:, 1].cpu().numpy().astype(np.float64)
-    shift = pulls[rows] * np.abs(n_y)
     target = torch.as_tensor(-pulls[rows] * n_y, dtype=base.dtype, device=base.device)  # the front (-Y) moves back
     done = model.layer.depth_shift
     delta = torch.zeros_like(base)
@@ -100,6 +99,7 @@ def match_layer_depth(model, *, max_pull: float = 0.01) -> DepthMatch | None:
     layer_pos = model.layer.positions
     model.layer.positions = layer_pos + delta.to(layer_pos.device, layer_pos.dtype)
     model.layer.depth_shift = target.detach().cpu().float()
+    shift = delta[:, 1].abs().cpu().numpy().astype(np.float64)
     if hasattr(model, "layer_rest"):
         p = model.layer.positions.to(model.layer_rest.device, model.layer_rest.dtype)
         e = model.layer_edges - nb
