@@ -73,16 +73,19 @@ def body(tiny_scene):
     return tiny_scene.body_model()
 
 
-def _model(body):
+def _model_on(body, layer):
     from reconstruct.avatar import AvatarConfig, AvatarModel
 
-    m = landmark_heights(body)
-    layer = build_garment_layer(body, VolumeHint(top_z=m["waist"], hem_z=m["knee"] + 0.08, standoff_hem=0.05),
-                                cols=24, row_step=0.06)
     cfg = AvatarConfig(gaussian_resolution=48, feature_resolution=32, feature_channels=8, pose_feature_channels=8,
                        hidden=32)
     torch.manual_seed(0)
     return AvatarModel(body, cfg, layer=layer)
+
+
+def _model(body):
+    m = landmark_heights(body)
+    return _model_on(body, build_garment_layer(
+        body, VolumeHint(top_z=m["waist"], hem_z=m["knee"] + 0.08, standoff_hem=0.05), cols=24, row_step=0.06))
 
 
 def test_the_move_is_in_depth_at_front_and_back_only_and_once(body, monkeypatch):
@@ -115,6 +118,12 @@ def test_the_move_is_in_depth_at_front_and_back_only_and_once(body, monkeypatch)
     assert float(moved[nb:][n[:, 0].abs() > 0.95, 1].abs().max()) < 0.0015
     assert torch.allclose(model.layer.positions, model.base_positions[nb:])
     assert "moved in" in match.describe()
+    # what the model derives from the layer's points is as a model built on the moved layer has it
+    fresh = _model_on(body, model.layer)
+    assert torch.allclose(model.texel_steps, fresh.texel_steps, atol=1e-7)
+    assert torch.allclose(model.layer_rest, fresh.layer_rest, atol=1e-7)
+    assert not torch.allclose(model.layer_rest, _model(body).layer_rest, atol=1e-5), "the move must change them"
+    assert not torch.allclose(model.texel_steps, _model(body).texel_steps, atol=1e-5)
     # a second finish on a finished avatar moves nothing more
     again = model.base_positions.clone()
     second = match_layer_depth(model)

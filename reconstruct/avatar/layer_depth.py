@@ -95,13 +95,7 @@ def match_layer_depth(model, *, max_pull: float = 0.01) -> DepthMatch | None:
     done = model.layer.depth_shift
     delta = torch.zeros_like(base)
     delta[:, 1] = target - (0 if done is None else done.to(base.device, base.dtype))
-    model.base_positions[nb:] += delta
-    layer_pos = model.layer.positions
-    model.layer.positions = layer_pos + delta.to(layer_pos.device, layer_pos.dtype)
+    model.move_layer(delta)
     model.layer.depth_shift = target.detach().cpu().float()
     shift = delta[:, 1].abs().cpu().numpy().astype(np.float64)
-    if hasattr(model, "layer_rest"):
-        p = model.layer.positions.to(model.layer_rest.device, model.layer_rest.dtype)
-        e = model.layer_edges - nb
-        model.layer_rest.copy_((p[e[:, 0]] - p[e[:, 1]]).norm(dim=1))
     return DepthMatch(pulls, shift)

@@ -80,6 +80,11 @@ def _bilinear_nodes(texel_rc: np.ndarray, fine: int, coarse: int) -> tuple[np.nd
     return np.stack([ids // coarse, ids % coarse], 1), inverse.reshape(flat.shape), np.stack(ws, 1)
 
 
+def _edge_lengths(points: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
+    """(E,) lengths of the grid edges ``edges`` (E,2) between ``points`` (the layer's rest lengths)."""
+    return (points[edges[:, 0]] - points[edges[:, 1]]).norm(dim=1)
+
+
 def _layer_uv(rows: int, cols: int) -> torch.Tensor:
     """(rows*cols, 2) the layer's positional decoder input: column angle round an annulus whose radius
     goes from 1.5 (top row) to 2.5 (hem), outside the body's [-1, 1]^2 (max(|x|, |y|) >= 1.5 / sqrt 2)."""
@@ -171,9 +176,8 @@ class AvatarModel(nn.Module):
                 self.register_buffer("layer_node_weights", torch.as_tensor(nodes.weights, dtype=torch.float32),
                                      persistent=False)  # (M,4)
             edges = torch.as_tensor(layer.edges())
-            p = layer.positions.float()
             self.register_buffer("layer_edges", edges + self.num_body, persistent=False)  # (E,2) Gaussian ids
-            self.register_buffer("layer_rest", (p[edges[:, 0]] - p[edges[:, 1]]).norm(dim=1), persistent=False)
+            self.register_buffer("layer_rest", _edge_lengths(layer.positions.float(), edges), persistent=False)
             # learned skinning (see layer_skin_weights): log-factors per bone the layer follows, per
             # tube, at knots down the layer every garment_skin_knot_step (rows interpolate them);
             # zero = the layer's built weights
@@ -549,6 +553,19 @@ class AvatarModel(nn.Module):
         opacities = (torch.ones(n, dtype=means.dtype, device=means.device) if canon.opacities is None
                      else canon.opacities)
         return PosedGaussians(means, normals, canon.colors, canon.scales, quats, opacities)
+
+    @torch.no_grad()
+    def move_layer(self, delta: torch.Tensor) -> None:
+        """Move the garment layer's built points by ``delta`` (M,3), after training
+        (``layer_depth.match_layer_depth``): the layer's positions, the model's base positions and
+        what the model derives from them (the discs' grid steps, the grid edges' rest lengths), as a
+        model built on the moved layer has them."""
+        nb = self.num_body
+        self.base_positions[nb:] += delta.to(self.base_positions)
+        self.layer.positions = self.layer.positions + delta.to(self.layer.positions)
+        if self.config.splat == "disc":
+            self.texel_steps[nb:] = self.layer.steps().to(self.texel_steps)
+        self.layer_rest.copy_(_edge_lengths(self.layer.positions.to(self.layer_rest), self.layer_edges - nb))
 
     def layer_grid(self) -> tuple[int, int, int] | None:
         """(rows, cols, tubes) of the garment layer's grid (its Gaussians follow the body's,
