@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from reconstruct.avatar.garment_layer import (SIDE_PROFILE_SLOPE, GarmentLayer, VolumeHint, build_garment_layer,
-                                              garment_layer_for, torso_top_height, volume_hint_from_masks)
+from reconstruct.avatar.garment_layer import (SIDE_PROFILE_FALL, SIDE_PROFILE_SLOPE, GarmentLayer, VolumeHint,
+                                              build_garment_layer, garment_layer_for, torso_top_height,
+                                              volume_hint_from_masks)
 from reconstruct.avatar.layer_profile import MIN_SIDE_REACH, fit_side_profile, frame_side_reach
 from reconstruct.body.pose import BodyPose
 from hint_scenes import clothing_scenes, with_mask
@@ -136,21 +137,33 @@ def test_the_stretch_moves_only_that_side_and_its_cloth_follows_the_ring_not_the
 def test_side_reach_never_falls_faster_than_the_slope(hint):
     """A profile read row by row can drop to 0 within a row (the long-skirt photo: 32 cm to 0 between
     rows 1.9 cm apart, where its slanted hem ended on that side), and the discs of those rows, scaled
-    by the grid's step, spanned the jump as needles. The rows below taper at ``SIDE_PROFILE_SLOPE``;
-    a profile within the slope is the knots' interpolation."""
+    by the grid's step, spanned the jump as needles. The rows below fall back at ``SIDE_PROFILE_FALL``
+    (they hang: at 5 the hem's 5 mm rows made a ledge lying almost flat under the cloth), the rows
+    above a knot at ``SIDE_PROFILE_SLOPE``; a profile within the slopes is the knots' interpolation."""
+    assert SIDE_PROFILE_FALL < SIDE_PROFILE_SLOPE
     zs = np.array([-0.70, -0.713, -0.727, -0.746, -0.751, -0.756, -0.761, -0.766, -0.771])
     h = replace(hint, side_profile=tuple((float(z), float(a), 0.0) for z, a in
                                          zip(zs, [0.277, 0.290, 0.318, 0, 0, 0, 0, 0, 0])))
     z = np.linspace(-0.68, -0.80, 121)
     left, right = h.side_reach(z)
     drop = -np.diff(left) / -np.diff(z)  # metres of stretch lost per metre down
-    assert drop.max() <= SIDE_PROFILE_SLOPE + 1e-9
-    assert h.side_reach(zs[3:4])[0][0] > 0.2  # the row 1.9 cm under 32 cm keeps most of it
-    np.testing.assert_allclose(h.side_reach(zs)[0][3:], np.clip(0.318 - SIDE_PROFILE_SLOPE * (-0.727 - zs[3:]), 0, None))
-    assert left[-1] == 0.0 and (right == 0).all()  # tapered to nothing 6.4 cm below the last 32 cm
+    assert drop.max() <= SIDE_PROFILE_FALL + 1e-9
+    np.testing.assert_allclose(h.side_reach(zs)[0][3:], 0.318 - SIDE_PROFILE_FALL * (-0.727 - zs[3:]))
+    assert (right == 0).all()
+    # the 32 cm row tapers upwards at the steeper slope: above it, the knots' own 27.7-29.0 cm, and
+    # 2 cm above the top knot 0.277 - 5 * 0.02
+    np.testing.assert_allclose(h.side_reach(np.array([-0.713, -0.68]))[0], [0.290, 0.277 - SIDE_PROFILE_SLOPE * 0.02])
+    rise = np.diff(left[z > -0.70]) / -np.diff(z[z > -0.70])  # metres gained per metre down, above the knots
+    assert rise.max() <= SIDE_PROFILE_SLOPE + 1e-9
     gentle = replace(hint, side_profile=((0.0, 0.1, 0.0), (-0.1, 0.3, 0.0), (-0.2, 0.25, 0.0)))
     np.testing.assert_allclose(gentle.side_reach(np.array([0.0, -0.05, -0.1, -0.15, -0.2]))[0],
                                [0.1, 0.2, 0.3, 0.275, 0.25])
+    # a row-by-row reference of the envelope
+    k = np.array(h.side_profile)
+    ref = [max([np.interp(-zz, -k[:, 0], k[:, 1], left=0, right=0)]
+               + [a - (SIDE_PROFILE_SLOPE * (zz - kz) if zz >= kz else SIDE_PROFILE_FALL * (kz - zz)) for kz, a, _ in k]
+               + [0.0]) for zz in z]
+    np.testing.assert_allclose(left, ref, atol=1e-12)
 
 
 def test_the_profile_goes_through_a_checkpoint(body, hint):
@@ -175,9 +188,10 @@ def test_the_profile_goes_through_a_checkpoint(body, hint):
 
 def test_side_reach_interpolates_the_knots_and_is_zero_outside(hint):
     h = replace(hint, side_left=0.01, side_profile=((0.0, 0.1, 0.0), (-0.2, 0.3, 0.2)))
-    left, right = h.side_reach(np.array([0.1, 0.0, -0.1, -0.2, -0.3]))
-    assert np.allclose(left, [0.01, 0.11, 0.21, 0.31, 0.01])
-    assert np.allclose(right, [0.0, 0.0, 0.1, 0.2, 0.0])
+    left, right = h.side_reach(np.array([0.1, 0.0, -0.1, -0.2, -0.3, -0.6]))
+    # below the last knot the cloth hangs from it: 0.3 - SIDE_PROFILE_FALL * 0.1 at -0.3, none 30 cm down
+    assert np.allclose(left, [0.01, 0.11, 0.21, 0.31, 0.01 + 0.3 - SIDE_PROFILE_FALL * 0.1, 0.01])
+    assert np.allclose(right, [0.0, 0.0, 0.1, 0.2, 0.2 - SIDE_PROFILE_FALL * 0.1, 0.0])
     with pytest.raises(ValueError, match="heights decreasing"):
         replace(hint, side_profile=((-0.2, 0.1, 0.0), (0.0, 0.1, 0.0)))
     with pytest.raises(ValueError, match="triples of numbers"):
