@@ -11,8 +11,8 @@ This layer adds Gaussians where the silhouette says there is something:
   polar radius round the slice's centre, ``body.slices.hull_polar_radii``: the convex envelope, so
   one ring spans both legs; rows past the covered body's end take the nearest full row's ring)
   plus a standoff growing from the top to the hem, never narrowing below the hips (cloth hangs);
-  rows every 1.4 cm (``AvatarConfig.garment_layer_step``), every 5 mm over
-  the last 3 cm, reaching 1 cm below the hint's hem (``row_heights``: the hem is an open edge);
+  rows every 1.4 cm (``AvatarConfig.garment_layer_step``), every 5 mm over the last 3 cm,
+  reaching 1 cm below the hint's hem (``row_heights``: the hem is an open edge);
 * skinning: each Gaussian takes a Gaussian-weighted average of the weights of the nearest body
   points (relative to the nearest), then the weights are diffused over the grid (a Gaussian filter,
   wrapping round), so the cloth between the legs blends the two legs' bones and the layer moves as
