@@ -151,13 +151,13 @@ class VolumeHint:
             return np.full(zs.shape, self.side_left), np.full(zs.shape, self.side_right)
         k = np.asarray(self.side_profile, float)[::-1]  # increasing heights for np.interp
         dz = zs.reshape(-1, 1) - k[None, :, 0]  # (Z, K) metres of height above each knot
-        # the reach a knot keeps at each height: falling at SIDE_PROFILE_SLOPE above it, at
-        # SIDE_PROFILE_FALL below it (as a distance scaled to the one slope)
-        gap = np.where(dz >= 0, dz, -dz * (SIDE_PROFILE_FALL / SIDE_PROFILE_SLOPE))
+        # (Z, K) what each knot's reach loses by each height: SIDE_PROFILE_SLOPE per metre above it,
+        # SIDE_PROFILE_FALL below it
+        loss = np.where(dz >= 0, SIDE_PROFILE_SLOPE * dz, -SIDE_PROFILE_FALL * dz)
         out = []
         for col, flap in ((1, self.side_left), (2, self.side_right)):
             lin = np.interp(zs, k[:, 0], k[:, col], left=0.0, right=0.0)
-            cone = np.clip((k[None, :, col] - SIDE_PROFILE_SLOPE * gap).max(1), 0.0, None).reshape(zs.shape)
+            cone = np.clip((k[None, :, col] - loss).max(1), 0.0, None).reshape(zs.shape)
             out.append(flap + np.maximum(lin, cone))
         return out[0], out[1]
 
@@ -393,9 +393,9 @@ def _tube_rings(pts: np.ndarray, zs: np.ndarray, theta: np.ndarray) -> tuple[np.
     few points on one side, and its mean runs off the ring's axis."""
     centres, radii = np.zeros((len(zs), 2)), np.zeros((len(zs), len(theta)))
     inside = np.flatnonzero((zs - _SLAB > pts[:, 2].min()) & (zs + _SLAB < pts[:, 2].max()))
-    for i, z in enumerate(zs):
-        if inside.size and i not in inside:
-            continue
+    read = inside if inside.size else np.arange(len(zs))  # the rows whose slice is read
+    for i in read:
+        z = zs[i]
         for width in (_SLAB, 0.025, 0.05):
             on = np.abs(pts[:, 2] - z) < width
             if on.sum() >= 16:
@@ -405,10 +405,8 @@ def _tube_rings(pts: np.ndarray, zs: np.ndarray, theta: np.ndarray) -> tuple[np.
         sl = pts[on, :2]  # torso, thighs and shins only: the arms are not in _dense_body
         centres[i] = sl.mean(0)  # inside the slice's convex hull
         radii[i] = hull_polar_radii(sl, centres[i], theta)
-    if inside.size:
-        near = inside[np.abs(np.arange(len(zs))[:, None] - inside[None]).argmin(1)]
-        centres, radii = centres[near], radii[near]
-    return centres, radii
+    near = read[np.abs(np.arange(len(zs))[:, None] - read[None]).argmin(1)]  # each row's nearest read row
+    return centres[near], radii[near]
 
 
 def row_heights(top_z: float, bottom_z: float, row_step: float, hem_band: float = 0.0,
