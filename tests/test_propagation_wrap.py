@@ -222,7 +222,7 @@ def test_a_part_with_a_few_trusted_edge_gaussians_takes_its_twins_colours():
     back = np.r_[~strip, np.zeros(len(a), bool)]
     np.testing.assert_allclose(out[back], np.tile(SKIN, (back.sum(), 1)), atol=1e-6)
     # with the twin borrowed only below k (before), the dark edge is carried round
-    old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0, twin_below=0)).numpy()
+    old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0, twin_below=0, twin_share=0.0)).numpy()
     assert np.abs(old[back] - SKIN).max(1).mean() > 0.3
 
 
@@ -903,3 +903,42 @@ def test_skin_reference_is_a_warm_median_of_enough_hand_gaussians():
     # the median, not the mean: a few dark edge Gaussians do not move it
     cols = np.r_[np.tile((0.9, 0.7, 0.6), (n, 1)), np.zeros((n // 3, 3))]
     np.testing.assert_allclose(skin_reference(cols), (0.9, 0.7, 0.6))
+
+
+GREEN = np.array((0.1, 0.4, 0.3))
+
+
+def _tilted_arm(tilt_deg: float, radius=0.045, length=0.3, n_theta=48, n_along=60):
+    """Points on a tube whose axis lies in the x-z plane, ``tilt_deg`` from upright (an arm in
+    anny's rest pose: about 40-50 degrees); theta = 0 faces the front (-Y), theta = 90 degrees the
+    side the axis is tilted towards (up, for an arm). Returns positions, theta."""
+    th, s = np.meshgrid(np.linspace(-np.pi, np.pi, n_theta, endpoint=False), np.linspace(-length / 2, length / 2, n_along))
+    th, s = th.ravel(), s.ravel()
+    t = np.radians(tilt_deg)
+    axis, across = np.array([np.sin(t), 0.0, np.cos(t)]), np.array([np.cos(t), 0.0, -np.sin(t)])
+    pos = np.array([0.3, 0.0, 1.3]) + s[:, None] * axis + radius * (np.sin(th)[:, None] * across - np.cos(th)[:, None] * [0, 1, 0])
+    return pos, th
+
+
+def test_a_limb_seen_far_less_than_its_twin_takes_the_twins_colours():
+    """The green-jacket photo's right upper arm kept 71 trusted texels (its sleeve was seen only at
+    grazing angles), 70 of them the white sweater the fit laid it over, against the left's 395 of
+    sleeve green. More than ``twin_below``, but under ``twin_share`` of its twin's: filled from the
+    twin (mirrored in x), its back is green; filled from its own, white."""
+    pos_l, th = _tilted_arm(45.0)
+    pos_r = pos_l * [-1.0, 1.0, 1.0]
+    pos = np.r_[pos_l, pos_r]
+    parts = np.r_[np.full(len(th), PART_INDEX["upperarm.L"]), np.full(len(th), PART_INDEX["upperarm.R"])]
+    seen_l = seen_front(th, 95)
+    strip = seen_l & (np.degrees(th) < -60)  # the right arm: a strip of its underside
+    col = np.tile(GREEN, (len(pos), 1))
+    col[len(th):][strip] = WHITE
+    seen = np.r_[seen_l, strip]
+    cfg = WrapFillConfig(smooth_sweeps=0)
+    assert cfg.twin_below <= strip.sum() < cfg.twin_share * seen_l.sum()  # the case the rule is for
+    back_r = np.r_[np.zeros(len(th), bool), ~strip]
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    np.testing.assert_allclose(out[back_r], np.tile(GREEN, (back_r.sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(out[len(th):][strip], np.tile(WHITE, (strip.sum(), 1)), atol=1e-6)  # its seen front stays
+    old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0, twin_share=0.0)).numpy()
+    assert (np.abs(old[back_r] - WHITE).max(1) < 0.05).mean() > 0.9

@@ -43,8 +43,9 @@ positions (the body faces -Y, +Z up):
    behind its centre, whose back has no evidence of a pattern of its own, each unseen Gaussian
    takes the per-channel median of the ``front_only_median`` nearest Gaussians of its part.
 
-A part with no seen Gaussian borrows from its left/right twin (mirrored in x), then the colours
-are the nearest seen or already filled ones of any part.
+A part with few seen Gaussians (under ``twin_below``, or under ``twin_share`` of its twin's)
+borrows from its left/right twin (mirrored in x); one left with fewer than ``k`` takes the
+nearest seen or already filled colours of any part.
 
 Parts past the body's (``parts >= len(PART_NAMES)``): a garment layer's Gaussians
 (``garment_layer.GARMENT_PART``) are filled as one more part -- its band is the seen cloth round
@@ -123,6 +124,13 @@ class WrapFillConfig:
     # erosion, and their colours are the edge's (the long-skirt photo: 8 trusted on the left hand,
     # 6 of them dark where it met the skirt, and its back came out dark red)
     twin_below: int = 32
+    # ... and a part with fewer trusted Gaussians than this share of its twin's, however many: what
+    # a photo shows of a limb seen far less than its twin is the few texels the fit laid over
+    # something else. The green-jacket photo's fitted right upper arm kept 71 trusted texels, 70 of
+    # them the white sweater it overlaps (its sleeve was seen only at grazing angles), against 395
+    # sleeve-green ones of the left; its back came out white, and the torso's upper back, filled
+    # from its neighbours, with it. A pair of sleeves is one garment's
+    twin_share: float = 0.25
     smooth_sweeps: int = 2
     # parts the video never saw behind their centre (``behind_share``, below: a photo, a video
     # that never turned): their band is the silhouette's sides only,
@@ -435,13 +443,12 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         by_rows = on_grid and cfg.layer_row_median and never_behind and cfg.layer_profile_rows > 0
         src_pos = pos[src] if len(src) else np.zeros((0, 3))
         twin_min = max(cfg.k, cfg.twin_below)
-        if len(src) < twin_min:  # borrow the left/right twin, mirrored in x
-            twin = PART_INDEX.get(MIRROR.get(name, ""), -1)
-            if twin >= 0 and twin != p:
-                tw = np.flatnonzero((parts == twin) & seen)
-                if len(tw) >= twin_min:
-                    src = tw
-                    src_pos = pos[tw] * np.array([-1.0, 1.0, 1.0])
+        twin = PART_INDEX.get(MIRROR.get(name, ""), -1)
+        if twin >= 0 and twin != p:  # borrow the left/right twin, mirrored in x
+            tw = np.flatnonzero((parts == twin) & seen)
+            if len(tw) >= twin_min and (len(src) < twin_min or len(src) < cfg.twin_share * len(tw)):
+                src = tw
+                src_pos = pos[tw] * np.array([-1.0, 1.0, 1.0])
         if len(src) < cfg.k:
             continue  # left to the fallback below
         # 1. the boundary band: seen Gaussians of the part near its unseen ones -- on a part never
