@@ -449,6 +449,48 @@ def test_front_only_head_back_and_crown_take_the_hair():
     assert np.linalg.norm(off[low_back] - SKIN, axis=1).mean() < 0.05
 
 
+def test_front_only_head_with_a_few_seen_just_behind_its_centre_takes_the_hair():
+    """A photo's head, bent and turned, shows a column of its silhouette's edge just behind its
+    centre: skin at face height (the sweater photo: 9 band Gaussians there, 2 % of the head). More
+    than ``k``, far under ``behind_share`` of the head's back: the head was never seen behind, and
+    its back and crown take the hair the front shows, not the median of that column (skin)."""
+    pos, th, seen, truth = front_only_head()
+    edge = (np.abs(np.degrees(th) - 95) < 1) & (pos[:, 2] < 1.70)  # one column, at face height
+    seen = seen | edge
+    truth = np.where(edge[:, None], SKIN, truth)
+    parts = np.full(len(pos), PART_INDEX["head"])
+    behind = pos[:, 1] > pos[:, 1].mean()
+    cfg = WrapFillConfig()
+    assert cfg.k <= (edge & behind).sum() < cfg.behind_share * behind.sum()  # the case the rule is for
+    col = np.where(seen[:, None], truth, 0.5)
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    back = ~seen & (np.abs(np.degrees(th)) > 120)
+    assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
+    # read as a head seen behind its centre (its band there: the skin column), the back is skin
+    seen_behind = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(behind_share=0.0)).numpy()
+    assert np.linalg.norm(seen_behind[back & (pos[:, 2] < 1.68)] - SKIN, axis=1).mean() < 0.05
+
+
+def test_front_only_head_that_tells_no_hair_keeps_its_posterior_band():
+    """Where the front tells no hair from face (the green-jacket photo: the middle split 38 to 37
+    between the two colours), a head never seen behind its centre keeps the posterior band it has
+    -- here the hair of a column just behind the centre -- not the front's same-height colours: its
+    cheeks' skin, which painted the lower back of the head skin-coloured."""
+    pos, th, _, _ = front_only_head()
+    deg = np.abs(np.degrees(th))
+    edge = (np.abs(np.degrees(th) - 95) < 1) & (pos[:, 2] < 1.70)  # hair just behind the centre
+    seen = (deg <= 85) | edge
+    skin = (deg <= 85) & (pos[:, 2] < 1.70) & ~((deg < 30) & (pos[:, 0] < 0))  # a lock across the face
+    truth = np.where(skin[:, None], SKIN, HAIR)
+    parts = np.full(len(pos), PART_INDEX["head"])
+    col = np.where(seen[:, None], truth, 0.5)
+    from reconstruct.appearance.hair import hair_sources
+    assert not hair_sources(pos[seen], col[seen], pos[:, 0].mean(), contrast=0.15, min_share=0.1, k=8).any()
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    back = ~seen & (deg > 120)
+    assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
+
+
 def test_front_only_head_reads_its_hair_from_the_less_eroded_flags():
     """The hair framing a face in a photo is a ring the fill's erosion takes: with the trusted flags
     holding none of it the rule finds no hair and the back at face height takes the face's skin;

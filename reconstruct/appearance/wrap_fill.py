@@ -36,8 +36,8 @@ positions (the body faces -Y, +Z up):
    On the head the band is the seen surface behind the head's centre, less the Gaussians in the
    face's colour cluster (the ears' and the jaw's skin the turning video saw just behind the
    coronal plane) when the head shows hair of its own colour (``hair.py``). Seen from the front
-   only (fewer than ``k`` seen Gaussians behind its centre), the back and the crown take the
-   hair's colour instead.
+   only (never seen behind its centre: ``behind_share``), the back and the crown take the
+   hair's colour instead, when the front shows hair (else the posterior band, if it has ``k``).
 4. **Smoothing.** A few Jacobi sweeps over the UV grid of the unseen Gaussians (seen ones fixed)
    remove single-texel noise from the median choices. Before them, on a part the video never saw
    behind its centre, whose back has no evidence of a pattern of its own, each unseen Gaussian
@@ -498,13 +498,14 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         covered = None
         if posterior:
             behind = band_pos[:, 1] > centre_y
-            if behind.sum() >= cfg.k:
-                band_idx, band_pos, band_col = band_idx[behind], band_pos[behind], band_col[behind]
-                face = face_coloured(src_pos, col[src], pos[members, 0].mean(), contrast=cfg.hair_contrast,
-                                     min_share=cfg.hair_min_share, k=cfg.k, skin=skin)[band_idx]
-                if (~face).sum() >= cfg.k:
-                    band_pos, band_col = band_pos[~face], band_col[~face]
-            else:
+            # the hair read on the front: for a head with fewer than ``k`` band Gaussians behind
+            # its centre, and first for one never seen behind it (``behind_share``) however many
+            # lie just behind: the sweater photo's head, bent and turned, had 9 there (218 trusted
+            # in all, 2 % of the head), its silhouette's edge, and their median painted the back
+            # of the head a skin-and-hair brown. Where the hair rule stands down the posterior
+            # band stands, when it has ``k`` (the green-jacket photo: face and hair split the
+            # middle 38 to 37, and the back of the head keeps the hair of its band)
+            if never_behind or behind.sum() < cfg.k:
                 centre = np.array([pos[members, i].mean() for i in range(3)])
                 # the hair is read on the rim of the seen head: from ``hair_seen`` when given (the
                 # flags eroded less; a ring of hair round a face is a strip, as a limb is)
@@ -515,6 +516,12 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                                     min_share=cfg.hair_min_share, k=cfg.k, skin=skin)
                 if hair.any():
                     covered = hair_covered(pos[todo], pos[hsrc], hair, centre)
+            if covered is None and behind.sum() >= cfg.k:
+                band_idx, band_pos, band_col = band_idx[behind], band_pos[behind], band_col[behind]
+                face = face_coloured(src_pos, col[src], pos[members, 0].mean(), contrast=cfg.hair_contrast,
+                                     min_share=cfg.hair_min_share, k=cfg.k, skin=skin)[band_idx]
+                if (~face).sum() >= cfg.k:
+                    band_pos, band_col = band_pos[~face], band_col[~face]
         # 2. low-frequency fill along the wrap direction (same height). Where the band falls short
         # (a layer's row, a height it does not reach) the seen Gaussians stand in, in colours the
         # part shows on both sides at that height: the green-jacket photo's open front showed the
