@@ -491,6 +491,47 @@ def test_front_only_head_that_tells_no_hair_keeps_its_posterior_band():
     assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
 
 
+def test_front_only_heads_hair_runs_down_the_back_without_bands():
+    """A photo's rim of hair changes from height to height (a lit strand, a shadowed one). Hair
+    runs down, so the back of the head takes the median of all the hair within ``hair_slab`` of
+    each height, both sides pooled: at most a gentle change down the back. With the ``k`` nearest
+    at the same height (``hair_slab=0``) the strands' light and shade were drawn round the back
+    as horizontal bands (the red-dress and group photos)."""
+    pos, th, seen, truth = front_only_head(skin_sides=False)
+    hair = np.all(truth == HAIR, axis=1)
+    band = 0.5 * np.sin(pos[:, 2] * 2 * np.pi / 0.025)  # light and shade, 2.5 cm from strand to strand
+    truth = np.where(hair[:, None], np.clip(HAIR + 0.3 * band[:, None], 0, 1), truth)
+    parts = np.full(len(pos), PART_INDEX["head"])
+    col = np.where(seen[:, None], truth, 0.5)
+    back = ~seen & (np.abs(np.degrees(th)) > 120)
+    z = np.unique(np.round(pos[back, 2], 6))
+
+    def rows(out):  # the back's mean colour at each height
+        return np.stack([out[back & (np.abs(pos[:, 2] - h) < 1e-6)].mean(0) for h in z])
+    new = rows(wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0, front_only_median=0)).numpy())
+    old = rows(wrap_fill_colors(pos, parts, seen, col, None,
+                                WrapFillConfig(smooth_sweeps=0, front_only_median=0, hair_slab=0.0)).numpy())
+    step = lambda r: np.abs(np.diff(r, axis=0)).max(1).mean()  # noqa: E731
+    assert step(old) > 0.04  # the bands
+    assert step(new) < 0.5 * step(old)  # 0.024 against 0.068
+    assert np.abs(np.median(new, 0) - HAIR).max() < 0.08  # still the hair's colour
+
+
+def test_height_profile_against_a_brute_force_reference():
+    from reconstruct.appearance.wrap_fill import height_profile
+    rng = np.random.default_rng(7)
+    zs, cs = rng.uniform(0, 1, 300), rng.uniform(0, 1, (300, 3))
+    zq = np.r_[rng.uniform(-0.2, 1.2, 200), 5.0]
+    got = height_profile(zq, zs, cs, 0.05, 8)
+    for i, z in enumerate(zq):
+        near = np.abs(zs - z) <= 0.05
+        if near.sum() < 8:
+            near = np.zeros(300, bool)
+            near[np.argsort(np.abs(zs - z))[:8]] = True
+        np.testing.assert_allclose(got[i], np.median(cs[near], axis=0), atol=1e-12)
+    assert np.isnan(height_profile(zq, zs[:0], cs[:0], 0.05, 8)).all()
+
+
 def test_front_only_head_reads_its_hair_from_the_less_eroded_flags():
     """The hair framing a face in a photo is a ring the fill's erosion takes: with the trusted flags
     holding none of it the rule finds no hair and the back at face height takes the face's skin;

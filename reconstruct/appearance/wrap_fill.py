@@ -195,6 +195,12 @@ class WrapFillConfig:
     # ``hair_min_share`` of the seen head
     hair_contrast: float = 0.15
     hair_min_share: float = 0.1
+    # metres: a Gaussian the hair covers takes the median colour of all the hair Gaussians within
+    # this height of it (at least ``k``, the nearest in height), both sides of the head pooled --
+    # not of the ``k`` nearest at its height: hair runs down, so what changes from height to height
+    # on a photo's rim (a lit strand, a shadowed one) drew horizontal bands across the back of the
+    # head (the red-dress photo). 0: the ``k`` nearest at the same height
+    hair_slab: float = 0.03
     # which of the head's two colour clusters is the face: the one nearer to the seen hands' skin
     # when they tell (``hair.skin_reference``; the middle's vote otherwise). The red-dress photo's
     # middle voted for her shadowed hair, and the back of her head came out skin-coloured
@@ -261,6 +267,27 @@ def _same_height_median(pos_q: np.ndarray, pos_b: np.ndarray, col_b: np.ndarray,
                 pos_s, col_s, idx = seen_row[0], seen_row[1], s_order[s_lo:s_hi]
         d = np.linalg.norm(pos_s[idx] - q, axis=1)
         out[i] = np.median(col_s[idx[np.argsort(d)[: cfg.k]]], axis=0)
+    return out
+
+
+def height_profile(z_query: np.ndarray, z_src: np.ndarray, col_src: np.ndarray, slab: float, k: int) -> np.ndarray:
+    """(Q,3): for each query height the per-channel median colour of the sources (heights
+    ``z_src``, colours ``col_src``) within ``slab`` of it in height, or of the ``k`` nearest to it
+    in height where fewer lie within; NaN without sources."""
+    out = np.full((len(z_query), 3), np.nan)
+    if len(z_src) == 0:
+        return out
+    order = np.argsort(z_src)
+    zs, cs = np.asarray(z_src)[order], np.asarray(col_src, np.float64)[order]
+    lo = np.searchsorted(zs, z_query - slab)
+    hi = np.searchsorted(zs, z_query + slab, side="right")
+    kk = min(k, len(zs))
+    for i, z in enumerate(z_query):
+        if hi[i] - lo[i] >= kk:
+            out[i] = np.median(cs[lo[i]:hi[i]], axis=0)
+        else:
+            near = np.argsort(np.abs(zs - z), kind="stable")[:kk]
+            out[i] = np.median(cs[near], axis=0)
     return out
 
 
@@ -570,7 +597,11 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                 seen_row = (src_pos[row_pool], col[src][row_pool])
             low = _same_height_median(pos[todo], band_pos, band_col, cfg, seen_row=seen_row)
         if covered is not None and covered.any():
-            low[covered] = _same_height_median(pos[todo][covered], pos[hsrc][hair], col[hsrc][hair], cfg)
+            if cfg.hair_slab > 0:
+                low[covered] = height_profile(pos[todo][covered, 2], pos[hsrc][hair][:, 2], col[hsrc][hair],
+                                              cfg.hair_slab, cfg.k)
+            else:
+                low[covered] = _same_height_median(pos[todo][covered], pos[hsrc][hair], col[hsrc][hair], cfg)
         # 3. the mirrored colour, kept where the band shows that colour at a nearby height
         query = pos[todo].copy()
         middle = centre_y
