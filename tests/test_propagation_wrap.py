@@ -9,10 +9,12 @@ import torch
 
 from reconstruct.avatar.garment_layer import GARMENT_PART
 from reconstruct.body.parts import PART_INDEX
-from reconstruct.appearance.wrap_fill import WrapFillConfig, column_middle, wrap_fill_colors
+from reconstruct.appearance.hair import hair_sources
+from reconstruct.appearance.wrap_fill import WrapFillConfig, column_middle, height_profile, wrap_fill_colors
 
-RED, WHITE, BLUE, SKIN, HAIR, YELLOW = (np.array(c, float) for c in (
-    (0.8, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.2, 0.8), (0.9, 0.7, 0.6), (0.2, 0.1, 0.05), (1.0, 0.9, 0.0)))
+RED, WHITE, BLUE, SKIN, HAIR, YELLOW, GREEN = (np.array(c, float) for c in (
+    (0.8, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.2, 0.8), (0.9, 0.7, 0.6), (0.2, 0.1, 0.05), (1.0, 0.9, 0.0),
+    (0.1, 0.4, 0.3)))
 
 
 def cylinder(radius=0.15, height=0.5, n_theta=96, n_z=100, z0=1.0):
@@ -484,8 +486,9 @@ def test_front_only_head_that_tells_no_hair_keeps_its_posterior_band():
     truth = np.where(skin[:, None], SKIN, HAIR)
     parts = np.full(len(pos), PART_INDEX["head"])
     col = np.where(seen[:, None], truth, 0.5)
-    from reconstruct.appearance.hair import hair_sources
-    assert not hair_sources(pos[seen], col[seen], pos[:, 0].mean(), contrast=0.15, min_share=0.1, k=8).any()
+    cfg = WrapFillConfig()
+    assert not hair_sources(pos[seen], col[seen], pos[:, 0].mean(), contrast=cfg.hair_contrast,
+                            min_share=cfg.hair_min_share, k=cfg.k).any()
     out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
     back = ~seen & (deg > 120)
     assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
@@ -518,7 +521,6 @@ def test_front_only_heads_hair_runs_down_the_back_without_bands():
 
 
 def test_height_profile_against_a_brute_force_reference():
-    from reconstruct.appearance.wrap_fill import height_profile
     rng = np.random.default_rng(7)
     zs, cs = rng.uniform(0, 1, 300), rng.uniform(0, 1, (300, 3))
     zq = np.r_[rng.uniform(-0.2, 1.2, 200), 5.0]
@@ -595,7 +597,6 @@ def test_front_only_bald_head_with_glasses_and_lips_stays_skin():
 
 
 def test_hair_as_light_as_the_skin_is_no_hair():
-    from reconstruct.appearance.hair import hair_sources
     pos, th, seen, truth = front_only_head()
     light = np.where(np.all(truth == HAIR, axis=1)[:, None], SKIN - 0.1, SKIN)  # within the contrast
     src = np.flatnonzero(seen)
@@ -987,8 +988,6 @@ def test_skin_reference_is_a_warm_median_of_enough_hand_gaussians():
     cols = np.r_[np.tile((0.9, 0.7, 0.6), (n, 1)), np.zeros((n // 3, 3))]
     np.testing.assert_allclose(skin_reference(cols), (0.9, 0.7, 0.6))
 
-
-GREEN = np.array((0.1, 0.4, 0.3))
 
 
 def _tilted_arm(tilt_deg: float, radius=0.045, length=0.3, n_theta=48, n_along=60):
