@@ -989,7 +989,6 @@ def test_skin_reference_is_a_warm_median_of_enough_hand_gaussians():
     np.testing.assert_allclose(skin_reference(cols), (0.9, 0.7, 0.6))
 
 
-
 def _tilted_arm(tilt_deg: float, radius=0.045, length=0.3, n_theta=48, n_along=60):
     """Points on a tube whose axis lies in the x-z plane, ``tilt_deg`` from upright (an arm in
     anny's rest pose: about 40-50 degrees); theta = 0 faces the front (-Y), theta = 90 degrees the
