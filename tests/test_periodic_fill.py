@@ -115,11 +115,88 @@ def test_wrap_fill_carries_the_layers_checks_round_by_periods():
                                   wrap_fill_colors(pos, parts, seen, solid, None).numpy())
 
 
-def test_a_period_finer_than_the_layer_is_not_carried():
+def _read_whole_periods(colors, seen, period):
+    """The old continuation, as a reference: each unseen Gaussian read (linearly, between two seen
+    columns) the smallest whole number of periods along its row."""
+    R, C, _ = colors.shape
+    out = colors.copy()
+    for r in range(R):
+        for c in np.flatnonzero(~seen[r]):
+            for k in range(1, int(np.ceil(C / period)) + 1):
+                hit = False
+                for sign in (-1, 1):
+                    q = c + sign * k * period
+                    lo = int(np.floor(q)) % C
+                    hi = (lo + 1) % C
+                    if seen[r, lo] and seen[r, hi]:
+                        w = q - np.floor(q)
+                        out[r, c] = colors[r, lo] * (1 - w) + colors[r, hi] * w
+                        hit = True
+                        break
+                if hit:
+                    break
+    return out
+
+
+@pytest.mark.parametrize("period", [3.6, 4.0])
+def test_checks_finer_than_five_columns_are_folded_at_full_contrast(period):
+    """Checks repeating every 3.6 columns (the wide trousers' legs): the period is found, and the
+    fold carries them round at nearly their contrast, where a read between two columns a whole
+    number of periods on blurs the lines."""
     R, C = 40, 92
-    col = checks(R, C, C / 23)  # 4 columns a period
-    assert tube_period(col, front_half(R, C, 24)) is None
-    assert tube_period(checks(R, C, C / 12), front_half(R, C, 24)) is not None
+    truth = checks(R, C, period, phase=0.21)
+    seen = front_half(R, C, 24)
+    got = tube_period(truth, seen)
+    assert got is not None and abs(got - period) < 0.05 * period
+    out, done = continue_round(truth, seen, got)
+    back = ~seen
+    assert done[back].all() and not done[seen].any()
+    np.testing.assert_array_equal(out[seen], truth[seen])
+    err = np.abs(out - truth)[back].mean()
+    err_read = np.abs(_read_whole_periods(truth, seen, got) - truth)[back].mean()
+    assert err < 0.02 and err_read > 1.5 * err
+
+
+def test_a_period_near_the_grids_limit():
+    """Under ``MIN_PERIOD`` (2.5 columns) a period is not carried; just over it, it is, nearly
+    exactly (the rows' phases fill the period)."""
+    R, C = 40, 92
+    seen = front_half(R, C, 24)
+    assert tube_period(checks(R, C, 2.27), seen) is None
+    truth = checks(R, C, 2.6)
+    got = tube_period(truth, seen)
+    assert got is not None and abs(got - 2.6) < 0.05
+    out, done = continue_round(truth, seen, got)
+    assert done[~seen].all() and np.abs(out - truth)[~seen].mean() < 0.015
+
+
+def test_refine_period_against_the_truth():
+    from reconstruct.appearance.periodic_fill import refine_period
+    R, C = 40, 92
+    truth = checks(R, C, 3.55)
+    seen = front_half(R, C, 24)
+    assert abs(refine_period(truth, seen, 3.62) - 3.55) < 0.01
+    assert abs(refine_period(truth, seen, 3.50) - 3.55) < 0.01
+
+
+def test_diagonal_stripes_fold_row_by_row():
+    """Stripes whose phase moves along the rows (diagonal round the tube) share no waveform across
+    the rows: the rows fold alone, and the back continues each row's own phase."""
+    R, C = 40, 92
+    r, c = np.meshgrid(np.arange(R), np.arange(C), indexing="ij")
+    t = 0.5 + 0.5 * np.tanh(3 * np.sin(2 * np.pi * (c + 0.45 * r) / (C / 12)))
+    truth = A * (1 - t[..., None]) + B * t[..., None]
+    seen = front_half(R, C, 24)
+    noisy = truth + np.random.default_rng(3).normal(0, 0.02, truth.shape) * seen[..., None]
+    got = tube_period(noisy, seen)
+    assert got is not None and abs(got - C / 12) < 0.3
+    out, done = continue_round(noisy, seen, got)
+    back = ~seen
+    assert done[back].all()
+    err = np.abs(out - truth)[back].mean()
+    # the rows' mean colour, which a shared waveform would come to here
+    flat = np.abs(truth[seen].mean(0) - truth[back]).mean()
+    assert err < 0.03 and flat > 4 * err
 
 
 def test_one_band_seen_once_is_no_period():
