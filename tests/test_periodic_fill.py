@@ -177,6 +177,7 @@ def test_refine_period_against_the_truth():
     seen = front_half(R, C, 24)
     assert abs(refine_period(truth, seen, 3.62) - 3.55) < 0.01
     assert abs(refine_period(truth, seen, 3.50) - 3.55) < 0.01
+    assert abs(refine_period(truth, seen, 3.90) - 3.55) < 0.01  # 10 % off, as the shift estimate was on trousers seed 0
 
 
 def test_diagonal_stripes_fold_row_by_row():
