@@ -36,7 +36,7 @@ How, per tube of the layer's (rows, cols) grid, on the reliably seen Gaussians:
    buttons round onto the back twice.
 3. **The continuation: the seen rows folded by the period.** Each seen Gaussian has a phase
    round the period, ``(column / P) mod 1``. The seen colours are modelled as a row's offset plus
-   a waveform of the phase (``fold_model``): the waveform is the kernel-weighted mean of the
+   a waveform of the phase (``_Fold``): the waveform is the kernel-weighted mean of the
    seen colours less their row's offset at that phase (a Gaussian kernel ``BANDWIDTH`` of a period
    wide), the offsets the mean of each row's colours less the waveform, alternated. Shared by every
    row of the tube, the waveform is the checks' up-and-down stripes, the offsets the
@@ -86,7 +86,8 @@ STEP = 0.05  # columns: the resolution of the period
 ALIKE = 1e-3
 BANDWIDTH = 0.06  # the fold's kernel, in periods (sd of a Gaussian in phase)
 ROW_REACH = 1  # rows either side that a row folding alone borrows from (at half weight)
-ROWS_MARGIN = 0.5  # the rows fold alone when that predicts the seen colours with under this share of the shared error
+# the rows fold alone when that predicts the seen colours with under this share of the shared error
+ROWS_MARGIN = 0.5
 REFINE = 0.15  # the period is refined within this share of it
 REFINE_STEP = 0.0015  # share of the period: candidates this far apart
 PHASE_BINS = 512  # the fold's sums are taken on this many bins of the phase
@@ -195,13 +196,12 @@ class _Fold:
         self.rows, self.cols = np.nonzero(seen)
         self.x = colors[self.rows, self.cols]
         self.R = colors.shape[0]
-        self.phase = (np.arange(colors.shape[1]) / period) % 1.0
-        self.bin = np.minimum((self.phase * PHASE_BINS).astype(np.int64), PHASE_BINS - 1)
+        phase = (np.arange(colors.shape[1]) / period) % 1.0
+        self.bin = np.minimum((phase * PHASE_BINS).astype(np.int64), PHASE_BINS - 1)
         kernel = _phase_kernel(PHASE_BINS)
         self.k0 = kernel[0]
         self.kernel_fft = np.fft.fft(kernel)
-        counts = np.bincount(self.rows, minlength=self.R).astype(np.float64)
-        self.counts = counts
+        self.counts = np.bincount(self.rows, minlength=self.R).astype(np.float64)
         self.offset = np.zeros((self.R, 3))
         self.wave = np.zeros((PHASE_BINS, 3))
         for _ in range(FOLD_SWEEPS):
