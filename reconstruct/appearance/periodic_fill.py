@@ -177,11 +177,20 @@ def tube_period(colors: np.ndarray, seen: np.ndarray) -> float | None:
     return period
 
 
+def _phases(C: int, period: float) -> np.ndarray:
+    """Each of ``C`` columns' phase round ``period``, in [0, 1)."""
+    return (np.arange(C) / period) % 1.0
+
+
+def _kernel(d: np.ndarray) -> np.ndarray:
+    """The fold's kernel at phase differences ``d`` (already taken round the circle)."""
+    return np.exp(-0.5 * (d / BANDWIDTH) ** 2)
+
+
 def _phase_kernel(bins: int) -> np.ndarray:
     """The fold's kernel on ``bins`` bins of the phase (circular, centred on bin 0)."""
     d = np.arange(bins) / bins
-    d = np.minimum(d, 1.0 - d)
-    return np.exp(-0.5 * (d / BANDWIDTH) ** 2)
+    return _kernel(np.minimum(d, 1.0 - d))
 
 
 def _circular(values: np.ndarray, kernel_fft: np.ndarray) -> np.ndarray:
@@ -196,12 +205,15 @@ class _Fold:
         self.rows, self.cols = np.nonzero(seen)
         self.x = colors[self.rows, self.cols]
         self.R = colors.shape[0]
-        phase = (np.arange(colors.shape[1]) / period) % 1.0
-        self.bin = np.minimum((phase * PHASE_BINS).astype(np.int64), PHASE_BINS - 1)
+        self.bin = np.minimum((_phases(colors.shape[1], period) * PHASE_BINS).astype(np.int64), PHASE_BINS - 1)
+        self.seen_bin = self.bin[self.cols]
         kernel = _phase_kernel(PHASE_BINS)
         self.k0 = kernel[0]
         self.kernel_fft = np.fft.fft(kernel)
         self.counts = np.bincount(self.rows, minlength=self.R).astype(np.float64)
+        # the kernel's weight at each bin: the samples' phases do not change between the sweeps
+        self.den = _circular(np.bincount(self.seen_bin, minlength=PHASE_BINS).astype(np.float64)[:, None],
+                             self.kernel_fft)
         self.offset = np.zeros((self.R, 3))
         self.wave = np.zeros((PHASE_BINS, 3))
         for _ in range(FOLD_SWEEPS):
@@ -209,27 +221,22 @@ class _Fold:
             self._fit_offsets()
         self._fit_wave()
 
-    def _sums(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        b = self.bin[self.cols]
-        s = np.zeros((PHASE_BINS, 3))
-        np.add.at(s, b, values)
-        n = np.bincount(b, minlength=PHASE_BINS).astype(np.float64)[:, None]
-        return _circular(s, self.kernel_fft), _circular(n, self.kernel_fft)
-
     def _fit_wave(self) -> None:
         self.res = self.x - self.offset[self.rows]
-        self.num, self.den = self._sums(self.res)
+        s = np.zeros((PHASE_BINS, 3))
+        np.add.at(s, self.seen_bin, self.res)
+        self.num = _circular(s, self.kernel_fft)
         self.wave = self.num / np.maximum(self.den, 1e-12)
 
     def _fit_offsets(self) -> None:
-        w = self.wave[self.bin[self.cols]]
+        w = self.wave[self.seen_bin]
         acc = np.zeros((self.R, 3))
         np.add.at(acc, self.rows, self.x - w)
         self.offset = acc / np.maximum(self.counts, 1)[:, None]
 
     def loo_error(self) -> float:
         """Mean squared error (summed over RGB) of each seen colour predicted without itself."""
-        b = self.bin[self.cols]
+        b = self.seen_bin
         num = self.num[b] - self.k0 * self.res
         den = self.den[b] - self.k0
         ok = den[:, 0] > 1e-6
@@ -259,7 +266,7 @@ def _row_fold(colors: np.ndarray, seen: np.ndarray, phase: np.ndarray, r: int,
     xs, ps, ws, cs = (np.concatenate(a) for a in (xs, ps, ws, cs))
     d = phase[targets][:, None] - ps[None, :]
     d = d - np.round(d)
-    k = np.exp(-0.5 * (d / BANDWIDTH) ** 2) * ws[None, :]
+    k = _kernel(d) * ws[None, :]
     if leave_out:
         k[targets[:, None] == cs[None, :]] = 0.0
     den = k.sum(1, keepdims=True)
@@ -267,7 +274,7 @@ def _row_fold(colors: np.ndarray, seen: np.ndarray, phase: np.ndarray, r: int,
 
 
 def _rows_loo_error(colors: np.ndarray, seen: np.ndarray, period: float) -> float:
-    phase = (np.arange(colors.shape[1]) / period) % 1.0
+    phase = _phases(colors.shape[1], period)
     err, n = 0.0, 0
     for r in range(colors.shape[0]):
         cols = np.flatnonzero(seen[r])
@@ -304,7 +311,7 @@ def continue_round(colors: np.ndarray, seen: np.ndarray, period: float) -> tuple
     period = refine_period(colors, seen, period)
     shared = _Fold(colors, seen, period)
     by_rows = _rows_loo_error(colors, seen, period) < ROWS_MARGIN * shared.loo_error()
-    phase = (np.arange(C) / period) % 1.0
+    phase = _phases(C, period)
     for r in range(R):
         todo = np.flatnonzero(~seen[r])
         if len(todo) == 0 or not seen[r].any():
