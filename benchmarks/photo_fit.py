@@ -7,7 +7,8 @@ training sees it), the hole share (pixels at least 2 px inside the mask, as ``ev
 rendered alpha < 0.9), the alpha IoU (alpha > 0.5 against mask > 0.5) and the spill (pixels with
 alpha > 0.5 off the mask, as a share of the mask). Prints one row per run (the means over its
 frames) and how speckled its unseen side is (``back_specks``: frame 0's pose from 135, 180 and
-225 degrees, the share of the inside 0.2 brighter than the median of its 9 x 9 neighbourhood);
+225 degrees, the share of the inside 0.2 brighter than the median of its 9 x 9 neighbourhood) and
+its sides (``side_specks``: from 60, 90, 270 and 300 degrees, 0.2 brighter or darker);
 ``--strip DIR`` also writes, per run, an 8-view orbit strip of frame 0's pose
 (``RUN_orbit.png``, 0° = the frame's camera).
 
@@ -82,30 +83,42 @@ SPECK_STEP = 0.2  # a speck pixel is this much brighter (mean of RGB) than the m
 SPECK_WINDOW = 9  # px: the side of the square whose median it is compared with
 
 
-def speck_share(rgb: np.ndarray, alpha: np.ndarray) -> float:
+def speck_share(rgb: np.ndarray, alpha: np.ndarray, *, dark: bool = False) -> float:
     """Share of the inside of a render (alpha > 0.99 over the whole ``SPECK_WINDOW`` square round
     the pixel) whose brightness exceeds the median of that square by ``SPECK_STEP``: isolated light
     dots and streaks on a surface, which a mottled or speckled back shows and a smooth one does
-    not. Edges between two flat regions are not counted (the median follows the side the pixel is
-    on)."""
+    not. With ``dark``, those below the median by as much are counted too (dark dashes down a
+    limb seen from the side). Edges between two flat regions are not counted (the median follows
+    the side the pixel is on)."""
     from scipy.ndimage import minimum_filter, median_filter
 
     lum = np.asarray(rgb, np.float64).mean(-1)
     inside = minimum_filter(np.asarray(alpha, np.float64), size=SPECK_WINDOW) > 0.99
     if not inside.any():
         return float("nan")
-    bright = lum - median_filter(lum, size=SPECK_WINDOW) > SPECK_STEP
-    return float(bright[inside].mean())
+    step = lum - median_filter(lum, size=SPECK_WINDOW)
+    speck = (np.abs(step) if dark else step) > SPECK_STEP
+    return float(speck[inside].mean())
+
+
+def orbit_specks(trainer, frame_index: int, size: int, azimuths, *, dark: bool = False) -> float:
+    """``speck_share`` of frame ``frame_index``'s pose seen from ``azimuths`` (pixels pooled)."""
+    rows = [(r.rgb.detach().numpy(), r.alpha.detach().numpy())
+            for r in orbit_renders(trainer, frame_index, size, azimuths)]
+    rgb = np.concatenate([r for r, _ in rows], axis=1)
+    alpha = np.concatenate([a for _, a in rows], axis=1)
+    return speck_share(rgb, alpha, dark=dark)
 
 
 def back_specks(trainer, frame_index: int, size: int) -> float:
-    """``speck_share`` of frame ``frame_index``'s pose seen from 135, 180 and 225 degrees (pixels
-    pooled): how speckled the side no training view showed is."""
-    rows = [(r.rgb.detach().numpy(), r.alpha.detach().numpy())
-            for r in orbit_renders(trainer, frame_index, size, (135, 180, 225))]
-    rgb = np.concatenate([r for r, _ in rows], axis=1)
-    alpha = np.concatenate([a for _, a in rows], axis=1)
-    return speck_share(rgb, alpha)
+    """Light specks from 135, 180 and 225 degrees: how speckled the side no training view showed is."""
+    return orbit_specks(trainer, frame_index, size, (135, 180, 225))
+
+
+def side_specks(trainer, frame_index: int, size: int) -> float:
+    """Light and dark specks from 60, 90, 270 and 300 degrees: the sides, which a front view sees
+    only at grazing incidence (its silhouette's colours)."""
+    return orbit_specks(trainer, frame_index, size, (60, 90, 270, 300), dark=True)
 
 
 @torch.no_grad()
@@ -119,7 +132,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     print(f"{'run':<28} {'frames':>6} {'PSNR mask':>9} {'holes %':>8} {'IoU':>7} {'spill %':>8} {'layer':>6} "
-          f"{'back specks %':>13}")
+          f"{'back specks %':>13} {'side specks %':>13}")
     for run in args.runs:
         t = RunFolder(run).resume()
         frames = (range(len(t.scene.frames)) if args.frames is None
@@ -128,7 +141,7 @@ def main() -> None:
         mean = {k: float(np.nanmean([r[k] for r in rows])) for k in rows[0]}
         print(f"{run.name:<28} {len(rows):>6} {mean['psnr_mask']:9.2f} {100 * mean['holes']:8.2f} "
               f"{mean['iou']:7.4f} {100 * mean['spill']:8.2f} {t.state.model.num_layer:>6} "
-              f"{100 * back_specks(t, 0, args.size):13.3f}")
+              f"{100 * back_specks(t, 0, args.size):13.3f} {100 * side_specks(t, 0, args.size):13.3f}")
         if args.strip is not None:
             from PIL import Image
             args.strip.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,6 @@
 """The photo benchmark's speck measure (benchmarks/photo_fit.py, ``speck_share``): light dots on a
-surface count, a smooth surface, a shading ramp and the edge between two flat regions do not, and
-nothing outside the inside of the render does."""
+surface count (dark ones too when asked), a smooth surface, a shading ramp and the edge between two
+flat regions do not, and nothing outside the inside of the render does."""
 
 import numpy as np
 
@@ -42,3 +42,14 @@ def test_light_dots_count_by_their_pixels_inside_only():
 def test_no_inside_gives_nan():
     rgb, alpha = _plate()
     assert np.isnan(speck_share(rgb, np.zeros_like(alpha)))
+
+
+def test_dark_dots_count_only_when_asked():
+    rgb, alpha = _plate(value=0.6)
+    rgb[30:32, 30:32] -= SPECK_STEP + 0.1  # a 2 x 2 dark dash
+    assert speck_share(rgb, alpha) == 0.0
+    r = SPECK_WINDOW // 2
+    inside = (70 - r - (10 + r)) * (110 - r - (10 + r))
+    assert speck_share(rgb, alpha, dark=True) == 4 / inside
+    rgb[50:52, 90:92] += SPECK_STEP + 0.1  # and a light one: both count
+    assert speck_share(rgb, alpha, dark=True) == 8 / inside
