@@ -64,8 +64,8 @@ def decontaminate(rgb: np.ndarray, mask: np.ndarray, *, full: float = FULL, ring
     if not core.any():
         return out
     d_core, (cy, cx) = ndimage.distance_transform_edt(~core, return_indices=True)
-    # the core lies right behind: no farther than the way in plus the ring (and half a pixel's slack
-    # for the grid); for a full pixel of the ring the way in is 0
+    # the core lies right behind: no farther than the way in plus the ring, with 1.5 px of slack for
+    # the grid's diagonals; for a full pixel of the ring the way in is 0
     behind = ~core & (d_core <= np.where(inside, 0.0, d_in) + ring + 1.5)
     out[behind] = rgb[cy[behind], cx[behind]]
     return out
