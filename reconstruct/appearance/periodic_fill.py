@@ -286,15 +286,24 @@ def _rows_loo_error(colors: np.ndarray, seen: np.ndarray, period: float) -> floa
     return err / n if n else float("inf")
 
 
+def _refined_fold(colors: np.ndarray, seen: np.ndarray, period: float) -> tuple[float, _Fold]:
+    """The period within ``REFINE`` of ``period`` whose shared fold predicts the seen colours best,
+    each left out, and that fold."""
+    step = REFINE_STEP * period
+    candidates = np.arange((1 - REFINE) * period, (1 + REFINE) * period + step / 2, step)
+    best, best_fold, best_error = None, None, np.inf
+    for p in candidates:  # the first of equal errors, as argmin; only the best fold kept
+        fold = _Fold(colors, seen, p)
+        error = fold.loo_error()
+        if best is None or error < best_error:
+            best, best_fold, best_error = float(p), fold, error
+    return best, best_fold
+
+
 def refine_period(colors: np.ndarray, seen: np.ndarray, period: float) -> float:
     """The period within ``REFINE`` of ``period`` whose shared fold predicts the seen colours best,
     each left out."""
-    colors = np.asarray(colors, np.float64)
-    seen = np.asarray(seen, bool)
-    step = REFINE_STEP * period
-    candidates = np.arange((1 - REFINE) * period, (1 + REFINE) * period + step / 2, step)
-    errors = [_Fold(colors, seen, p).loo_error() for p in candidates]
-    return float(candidates[int(np.argmin(errors))])
+    return _refined_fold(np.asarray(colors, np.float64), np.asarray(seen, bool), period)[0]
 
 
 def continue_round(colors: np.ndarray, seen: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
@@ -308,8 +317,7 @@ def continue_round(colors: np.ndarray, seen: np.ndarray, period: float) -> tuple
     done = np.zeros((R, C), bool)
     if not seen.any():
         return out, done
-    period = refine_period(colors, seen, period)
-    shared = _Fold(colors, seen, period)
+    period, shared = _refined_fold(colors, seen, period)
     by_rows = _rows_loo_error(colors, seen, period) < ROWS_MARGIN * shared.loo_error()
     phase = _phases(C, period)
     for r in range(R):
