@@ -62,12 +62,12 @@ class FitConfig:
     keypoint_iters: int = 300
     silhouette_iters: int = 60
     lr: float = 0.03
-    silhouette_size: int = 256  # longer side of the silhouette images during the fit
-    # pixels (at silhouette_size) the person mask is grown by for the silhouette term. The splatted
+    silhouette_size: int = 128  # longer side of the silhouette images during the fit
+    # pixels (at silhouette_size) the person mask is grown by for the silhouette term: the splatted
     # body reaches past the exact mesh silhouette by about 1 px at 128 px and 2 px at 256 (soft IoU
     # against the mesh silhouette grown by 0 / 1 / 2 / 3 px: 0.76 / 0.91 / 0.80 / 0.68 at 128, 0.77 /
-    # 0.87 / 0.91 / 0.86 at 256; synthetic body, 4,000 samples). Growing by 1 at 256 leaves the mesh
-    # about one silhouette pixel inside the outline: a dressed person's body lies inside it (docs/prepare.md)
+    # 0.87 / 0.91 / 0.86 at 256; synthetic body, 4,000 samples). Fitting the body inside the outline
+    # (256 px, grown by 1) was tried and not kept: docs/prepare.md, "The body inside the outline"
     mask_growth: int = 1
     splat_vertices: int = 4000  # surface points splatted for the silhouette
     w_keypoints: float = 1.0
