@@ -107,6 +107,30 @@ def test_hint_ignores_a_sliver_at_the_crotch_and_a_patch_at_the_ankles(scenes, b
     assert not e.cloth, e
 
 
+def test_hint_reads_cloth_past_a_notch_at_the_crotch():
+    """A body fitted with its thighs touching below a notch at the crotch: the notch's rows are
+    tested, the touching ones are not (no gap), and the cloth below them is still cloth."""
+    from reconstruct.avatar.garment_layer import _without_isolated_top, body_silhouette, frame_hint_evidence
+
+    scene = clothing_scenes(("skirt",), **{**SMALL, "num_frames": 1, "image_size": 256})["skirt"]
+    body, skirt = scene.body_model(), scene.frames[0]
+    full = frame_hint_evidence(body, skirt)
+    assert full.cloth, full
+    first, hem = full.rows
+    metres_per_px = full.drop / (hem - first)
+    touching = int(np.ceil(0.09 / metres_per_px))  # past max_start (8 cm) below the notch
+    assert (hem - first - 2 - touching) * metres_per_px >= 0.10  # the cloth below still drops 10 cm
+    sil = body_silhouette(body, skirt).copy()
+    sil[first + 2:first + 2 + touching] = True  # no gap between the thighs: rows not tested
+    e = frame_hint_evidence(body, skirt, silhouette=sil)
+    assert e.cloth and e.rows[0] >= first + 2 + touching, e
+    # the notch is what the rule drops: a first run as long as the break is kept
+    assert _without_isolated_top([10, 11, 40, 41, 42], 8) == [40, 41, 42]
+    assert _without_isolated_top(list(range(10, 19)) + [40, 41], 8) == list(range(10, 19)) + [40, 41]
+    assert _without_isolated_top([10, 11, 15, 16], 8) == [10, 11, 15, 16]
+    assert _without_isolated_top([5], 8) == [5] and _without_isolated_top([], 8) == []
+
+
 def test_hint_needs_cloth_in_half_the_testable_frames(scenes, body):
     skirt, tight = scenes["skirt"].frames, scenes["garment"].frames
     one_in_four = [skirt[0], *tight[1:]]

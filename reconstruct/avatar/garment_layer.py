@@ -665,6 +665,8 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
         tested.append(r)
         if mask[r, a:b + 1][gap].mean() >= min_cover:
             covered.append(r)
+    tested = _without_isolated_top(tested, max_break / metres_per_px)
+    covered = [r for r in covered if r >= tested[0]] if tested else []
     if len(tested) < 2 or (tested[-1] - tested[0]) * metres_per_px < min_span:
         return HintEvidence(False, False)
     if not covered or (covered[0] - tested[0]) * metres_per_px > max_start:
@@ -687,6 +689,20 @@ def frame_hint_evidence(body: BodyModel, frame, *, min_cover: float = 0.9, min_g
             widths.append(max(0.0, ((run[1] - run[0]) - (inside.max() - inside.min())) / 2) * metres_per_px)
     flare = float(np.percentile(widths, 90)) if widths else None
     return HintEvidence(True, True, hem_z, flare, drop, (tested[0], hem_row))
+
+
+def _without_isolated_top(tested: list[int], max_break_rows: float) -> list[int]:
+    """The tested rows less a first run of them that ends more than ``max_break_rows`` above the
+    next tested row and spans less than that itself: a notch in the fitted body's crotch, with the
+    thighs touching below it (no gap, nothing tested), says nothing about where cloth begins. On the
+    green-coat photo with the body fitted a little inside the outline, a 2-row notch 8.7 cm above
+    the first gap between the thighs made the coat's cloth begin past ``max_start``."""
+    if len(tested) < 2:
+        return tested
+    for i in range(1, len(tested)):
+        if tested[i] - tested[i - 1] > max_break_rows:
+            return tested[i:] if tested[i - 1] - tested[0] < max_break_rows else tested
+    return tested
 
 
 def _run_around(row: np.ndarray, x: int) -> tuple[int, int] | None:
