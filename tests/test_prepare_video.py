@@ -217,6 +217,14 @@ def test_prepare_fit_with_test_double(synth, video, tmp_path):
     assert _outside_mask(out) < 0.04
 
 
+def test_fit_config_rejects_a_negative_mask_growth():
+    from reconstruct.data.prepare.fit import FitConfig
+
+    with pytest.raises(ValueError, match="mask_growth must be >= 0 pixels, found -1"):
+        FitConfig(mask_growth=-1)
+    assert FitConfig(mask_growth=0).mask_growth == 0
+
+
 def test_fit_rejects_nothing_to_fit_when_no_person(synth, tmp_path):
     """Every frame without a person (stub detector): a clear error naming the video, nothing written."""
     from app.export import write_frames

@@ -87,6 +87,10 @@ class FitConfig:
     stature_m: float | None = None  # the person's height if known (else a population prior)
     w_pitch: float = 0.02  # prior toward a level camera (on the pitch in radians, squared)
 
+    def __post_init__(self) -> None:
+        if self.mask_growth < 0:
+            raise ValueError(f"FitConfig: mask_growth must be >= 0 pixels, found {self.mask_growth}")
+
 
 @dataclass
 class CameraGuess:
