@@ -201,10 +201,11 @@ def test_prepare_fit_with_test_double(synth, video, tmp_path):
     err, ious, used = _fit_errors(synth, out)
     baseline = _baseline_error(synth, out)
     nerr, nbase = _fit_errors(synth, out, scale_align=True)[0], _baseline_error(synth, out, scale_align=True)
+    outside = _outside_mask(out)
     print(f"\ntest double: scale-aligned joint error {100 * nerr.mean():.2f} cm (canonical limbs: {100 * nbase:.2f} cm); "
           f"joint error {100 * err.mean():.2f} cm (limbs in canonical pose: {100 * baseline:.2f} cm), "
           f"per joint {np.round(100 * err.mean(0), 1).tolist()}; IoU vs truth {ious.mean():.3f}; "
-          f"keypoints {report['mean_keypoint_px_error']:.2f} px; outside the mask {100 * _outside_mask(out):.2f} %; "
+          f"keypoints {report['mean_keypoint_px_error']:.2f} px; outside the mask {100 * outside:.2f} %; "
           f"fit {report['seconds']['fit']:.1f} s")
     # measured here: scale-aligned 3.6 cm (canonical limbs 8.9 cm), raw 4.7 cm, IoU 0.954, keypoints 0.8 px
     # (before the shape fit: 5.6 / 8.8 cm, 0.90); the scene's 1.82 m body is 12 cm above the stature prior
@@ -214,7 +215,7 @@ def test_prepare_fit_with_test_double(synth, video, tmp_path):
     assert report["mean_keypoint_px_error"] < 2.0
     # the fitted body stays within a pixel or two of the person's outline: 3.15 % of its silhouette
     # outside the mask here (1.45 % with the body fitted inside it, docs/prepare.md)
-    assert _outside_mask(out) < 0.04
+    assert outside < 0.04
 
 
 def test_fit_config_rejects_a_negative_mask_growth():
