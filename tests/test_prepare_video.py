@@ -27,7 +27,7 @@ from detector_helpers import detector_python
 from reconstruct.data.prepare import (Detections, DetectorError, MediapipeDetector, NoPersonError,
                                       PersonDetector, VideoError, parse_mediapipe_output, prepare_video)
 from reconstruct.data.prepare.detector import find_detector_python
-from reconstruct.data.prepare.evaluate import joint_errors, mask_iou
+from reconstruct.data.prepare.evaluate import in_prepared_frame, joint_errors, mask_iou
 from reconstruct.data.prepare.keypoints import NUM_LANDMARKS, KeypointMap
 from reconstruct.data.prepare.silhouette import mesh_silhouette
 from reconstruct.data.scene_io import read_scene
@@ -58,14 +58,6 @@ def video(synth, tmp_path_factory):
 
 
 
-def _truth_mask(mask: np.ndarray, scene_folder: Path) -> np.ndarray:
-    """The ground-truth mask in the scene's (cropped, resized) frame."""
-    from reconstruct.data.prepare.crop import Crop, apply_crop
-
-    crop = Crop(**json.loads((scene_folder / "prepare_report.json").read_text())["crop"])
-    return apply_crop(mask[None].astype(np.float32), crop, resample="bilinear")[0]
-
-
 def _fit_errors(synth, scene_folder: Path, scale_align: bool = False) -> tuple[np.ndarray, np.ndarray, list[int]]:
     scene = read_scene(scene_folder)
     gt = {f.index: f for f in synth.frames}
@@ -75,7 +67,7 @@ def _fit_errors(synth, scene_folder: Path, scale_align: bool = False) -> tuple[n
                        [gt[i].pose for i in used], gt[used[0]].camera, scale_align=scale_align)
     faces = fit_body.faces.numpy()
     ious = np.array([mask_iou(mesh_silhouette(fit_body.posed_vertices(f.pose).numpy(), faces, f.camera).astype(float),
-                              _truth_mask(gt[f.index].mask, scene_folder)) for f in scene.frames])
+                              in_prepared_frame(gt[f.index].mask, scene_folder)) for f in scene.frames])
     return err, ious, used
 
 

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 
 from ...body.base import BodyModel
 from ...body.pose import BodyPose
 from ...camera import Camera
+from .crop import Crop, apply_crop
 from .keypoints import EVAL_JOINTS
 
 
@@ -40,3 +44,15 @@ def mask_iou(a: np.ndarray, b: np.ndarray, threshold: float = 0.5) -> float:
     a, b = a > threshold, b > threshold
     union = (a | b).sum()
     return float((a & b).sum() / union) if union else 1.0
+
+
+def in_prepared_frame(image: np.ndarray, scene_folder: Path) -> np.ndarray:
+    """(H,W) float: an (h,w) map of the source video's frame (a true mask, a true silhouette) cropped
+    and resized as ``prepare`` cropped that video into ``scene_folder`` (its prepare_report.json's
+    crop), bilinear."""
+    report = Path(scene_folder) / "prepare_report.json"
+    try:
+        crop = Crop(**json.loads(report.read_text())["crop"])
+    except (OSError, KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{report}: expected prepare's report with a 'crop' entry ({err})") from err
+    return apply_crop(np.asarray(image, np.float32)[None], crop, resample="bilinear")[0]
