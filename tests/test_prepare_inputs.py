@@ -335,3 +335,46 @@ def test_a_map_of_the_source_frame_is_cropped_as_prepare_cropped_it(tmp_path):
     with pytest.raises(ValueError, match=r"prepare_report\.json"):
         in_prepared_frame(src, tmp_path / "missing")
 
+
+def _picture(h: int = 48, w: int = 32) -> np.ndarray:
+    """A picture no quarter turn or mirror maps onto itself: a gradient and a block in one corner."""
+    y, x = np.mgrid[0:h, 0:w]
+    im = np.stack([x * 255 // (w - 1), y * 255 // (h - 1), np.full_like(x, 90)], -1).astype(np.uint8)
+    im[2:10, 2:8] = [250, 250, 30]
+    return im
+
+
+def test_a_phone_photo_stored_sideways_is_read_upright(tmp_path):
+    """A phone keeps a portrait photo's pixels sideways and writes EXIF orientation 6 ("turn a quarter
+    clockwise to show"): ``prepare`` sees the person standing, the size and the pixels of the upright
+    picture; without the tag the same pixels stay as stored."""
+    from reconstruct.data.prepare.inputs import read_input
+
+    upright = _picture()
+    stored = np.rot90(upright, 1)  # a quarter turn counter-clockwise, which tag 6 turns back
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(stored).save(tmp_path / "tagged.jpg", quality=98, exif=exif)
+    Image.fromarray(stored).save(tmp_path / "untagged.jpg", quality=98)
+    video, _ = read_input(tmp_path / "tagged.jpg", max_side=None)
+    assert video.frames.shape[1:3] == upright.shape[:2] and video.source_size == (32, 48)
+    assert np.abs(video.frames[0].astype(float) - upright).mean() < 3.0
+    plain, _ = read_input(tmp_path / "untagged.jpg", max_side=None)
+    assert plain.frames.shape[1:3] == stored.shape[:2]
+
+
+def test_a_cut_out_is_read_over_a_light_wall(tmp_path):
+    """A cut-out PNG's transparent pixels hold any colour (here pure red); they are read as the light
+    wall, half-transparent ones blended with it, opaque ones as they are."""
+    from reconstruct.data.prepare.inputs import CUTOUT_BACKGROUND, read_input
+
+    rgba = np.zeros((40, 30, 4), np.uint8)
+    rgba[..., 0] = 255  # red everywhere, hidden where transparent
+    rgba[10:30, 8:22] = [20, 60, 140, 255]  # the person
+    rgba[5, :, 3] = 128  # a half-transparent row
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "cutout.png")
+    frame = read_input(tmp_path / "cutout.png", max_side=None)[0].frames[0].astype(int)
+    assert frame[0, 0].tolist() == list(CUTOUT_BACKGROUND)
+    assert frame[20, 15].tolist() == [20, 60, 140]
+    half = (np.array([255, 0, 0]) * 128 + np.array(CUTOUT_BACKGROUND) * 127) / 255
+    assert np.abs(frame[5, 3] - half).max() <= 1

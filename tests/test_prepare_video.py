@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -294,3 +295,31 @@ def test_parse_mediapipe_output(tmp_path):
     path.write_bytes(b"not a zip")
     with pytest.raises(DetectorError, match="cannot be read"):
         parse_mediapipe_output(path, W, H)
+
+
+def test_a_video_with_a_display_rotation_is_read_upright(tmp_path):
+    """A phone records a portrait video as landscape pixels plus a display matrix; ``read_video`` turns
+    every frame as ffmpeg itself does when it shows the file (its own autorotated decode is the
+    reference), and the source size is the upright one."""
+    import imageio_ffmpeg
+    from PIL import Image
+
+    from reconstruct.data.prepare.video import display_rotation, read_video
+
+    ffmpeg = imageio_ffmpeg.get_ffmpeg_exe()
+    plain = tmp_path / "plain.mp4"
+    subprocess.run([ffmpeg, "-y", "-loglevel", "error", "-f", "lavfi", "-i", "testsrc=size=64x48:rate=10", "-t", "0.5",
+                    "-pix_fmt", "yuv420p", str(plain)], check=True)
+    for degrees, turns in ((90, 1), (-90, 3), (180, 2)):
+        rotated = tmp_path / f"rot{turns}.mp4"
+        subprocess.run([ffmpeg, "-y", "-loglevel", "error", "-display_rotation", str(degrees), "-i", str(plain),
+                        "-c", "copy", str(rotated)], check=True)
+        shown = tmp_path / f"shown{turns}.png"
+        subprocess.run([ffmpeg, "-y", "-loglevel", "error", "-i", str(rotated), "-frames:v", "1", str(shown)], check=True)
+        reference = np.asarray(Image.open(shown).convert("RGB")).astype(int)
+        assert display_rotation(rotated) == turns
+        v = read_video(rotated, max_size=None)
+        assert v.frames.shape[1:3] == reference.shape[:2] and v.source_size == (reference.shape[1], reference.shape[0])
+        assert np.abs(v.frames[0].astype(int) - reference).mean() < 1.0
+    assert display_rotation(plain) == 0 and read_video(plain, max_size=None).frames.shape[1:3] == (48, 64)
+    assert display_rotation(tmp_path / "missing.mp4") == 0

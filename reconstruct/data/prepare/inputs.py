@@ -1,4 +1,6 @@
 """What ``prepare`` accepts: a video, one image (jpg/png/webp/...), or a folder of images (sorted by name).
+Images are read upright (their EXIF orientation applied) and cut-outs over a light wall
+(``CUTOUT_BACKGROUND``); videos are turned by their display rotation (``video.read_video``).
 
 ``read_input`` returns a ``Video`` (frames at most ``max_side`` pixels on the longer side; the person crop
 comes later) and names every problem with the path: no such file, unreadable file, empty folder,
@@ -34,6 +36,25 @@ def input_kind(path: str | os.PathLike) -> str:
     return "video"
 
 
+# what a cut-out's transparent pixels are shown over (a light, neutral wall): whatever colour they
+# hold (often black, or the colour the background had before it was cut away) is not the scene's
+CUTOUT_BACKGROUND = (209, 209, 204)
+
+
+def _upright_rgb(im) -> np.ndarray:
+    """(H,W,3) uint8 of a PIL image as it is meant to be seen: turned by its EXIF orientation (a phone
+    stores a portrait photo sideways and says so in the tag) and, when it has transparency (a cut-out
+    PNG), laid over ``CUTOUT_BACKGROUND``."""
+    from PIL import Image, ImageOps
+
+    im = ImageOps.exif_transpose(im) or im
+    if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
+        rgba = im.convert("RGBA")
+        base = Image.new("RGBA", rgba.size, CUTOUT_BACKGROUND + (255,))
+        return np.asarray(Image.alpha_composite(base, rgba).convert("RGB"))
+    return np.asarray(im.convert("RGB"))
+
+
 def _read_image(path: Path) -> np.ndarray:
     from PIL import Image, UnidentifiedImageError
 
@@ -42,7 +63,7 @@ def _read_image(path: Path) -> np.ndarray:
             im.load()
             if getattr(im, "n_frames", 1) > 1 and path.suffix.lower() not in (".tif", ".tiff"):
                 im.seek(0)
-            return np.asarray(im.convert("RGB"))
+            return _upright_rgb(im)
     except (UnidentifiedImageError, OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot be read as an image (expected {', '.join(IMAGE_SUFFIXES)}): "
                          f"{type(exc).__name__}: {exc}") from exc

@@ -19,7 +19,7 @@ class VideoError(ValueError):
 class Video:
     frames: np.ndarray  # (T,H,W,3) uint8 RGB at the working size
     fps: float
-    source_size: tuple[int, int]  # (width, height) as stored in the file
+    source_size: tuple[int, int]  # (width, height) as shown: a rotated video's turned (``display_rotation``)
     indices: np.ndarray  # (T,) frame numbers in the file
 
 
@@ -36,6 +36,22 @@ def working_size(width: int, height: int, max_size: int | None) -> tuple[int, in
     return max(2, round(width * s)), max(2, round(height * s))
 
 
+def display_rotation(path: str | os.PathLike) -> int:
+    """Quarter turns counter-clockwise (0-3) that show ``path``'s frames upright: the display matrix a
+    phone writes instead of turning a portrait video's pixels (its first frame's; 0 when there is none,
+    or when the file cannot be opened, which ``read_video`` reports). A rotation between quarter turns
+    is taken to the nearest one."""
+    try:
+        import av
+
+        with av.open(str(path)) as container:
+            frame = next(container.decode(video=0))
+            degrees = float(getattr(frame, "rotation", 0) or 0)
+    except Exception:  # noqa: BLE001 - an unreadable file is read_video's to report
+        return 0
+    return int(round(degrees / 90.0)) % 4
+
+
 def probe_video(path: str | os.PathLike) -> tuple[int, int]:
     """(width, height) of the first frame; raises like ``read_video`` without decoding the whole file."""
     v = read_video(path, max_size=None, max_frames=1)
@@ -44,7 +60,8 @@ def probe_video(path: str | os.PathLike) -> tuple[int, int]:
 
 def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: int = 1,
                max_frames: int | None = None, transform=None) -> Video:
-    """Frames of ``path`` (every ``every``-th, at most ``max_frames``), longer side at most ``max_size``;
+    """Frames of ``path`` (every ``every``-th, at most ``max_frames``), upright (``display_rotation``),
+    longer side at most ``max_size``;
     ``transform`` (frame at the file's size -> frame) replaces the resize and runs as each frame is decoded
     (a crop: only the cropped frames are held in memory).
     Raises FileNotFoundError for a missing file and VideoError for one that is not a decodable video."""
@@ -60,12 +77,15 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
     expected = f"expected a video file that ffmpeg can decode ({', '.join(VIDEO_SUFFIXES)})"
     frames, indices = [], []
     fps = 0.0
+    turns = display_rotation(path)
     try:
         meta = iio.immeta(path, plugin="pyav")
         fps = float(meta.get("fps") or 0.0)
         for i, frame in enumerate(iio.imiter(path, plugin="pyav", format="rgb24")):
             if i % every:
                 continue
+            if turns:
+                frame = np.ascontiguousarray(np.rot90(frame, turns))
             if not frames:
                 first_size = frame.shape[:2]
             frames.append(frame if transform is None else transform(frame))
