@@ -378,3 +378,16 @@ def test_a_cut_out_is_read_over_a_light_wall(tmp_path):
     assert frame[20, 15].tolist() == [20, 60, 140]
     half = (np.array([255, 0, 0]) * 128 + np.array(CUTOUT_BACKGROUND) * 127) / 255
     assert np.abs(frame[5, 3] - half).max() <= 1
+
+
+def test_a_phones_heic_photo_is_read(tmp_path):
+    """iPhones store photos as HEIC: read through pillow-heif's opener (which itself applies the file's
+    own rotation, its ``irot``, on decode and resets the EXIF tag, so the photo is turned once)."""
+    pillow_heif = pytest.importorskip("pillow_heif")
+    from reconstruct.data.prepare.inputs import read_input
+
+    upright = _picture(64, 48)
+    pillow_heif.from_bytes(mode="RGB", size=(48, 64), data=upright.tobytes()).save(tmp_path / "photo.heic", quality=95)
+    frame = read_input(tmp_path / "photo.heic", max_side=None)[0].frames[0]
+    assert frame.shape[:2] == upright.shape[:2]
+    assert np.abs(frame.astype(float) - upright).mean() < 6.0

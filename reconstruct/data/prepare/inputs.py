@@ -16,7 +16,8 @@ import numpy as np
 
 from .video import VIDEO_SUFFIXES, Video, VideoError, read_video, working_size
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff")
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff", ".heic", ".heif", ".avif")
+HEIF_SUFFIXES = (".heic", ".heif")  # a phone's photos (read through pillow-heif's opener)
 STILL_FPS = 25.0  # frame rate given to images (scene time stamps)
 
 
@@ -55,9 +56,20 @@ def _upright_rgb(im) -> np.ndarray:
     return np.asarray(im.convert("RGB"))
 
 
+def _register_heif(path: Path) -> None:
+    try:
+        from pillow_heif import register_heif_opener
+    except ImportError as exc:
+        raise InputError(f"{path}: a HEIF/HEIC photo needs the pillow-heif package (pip install pillow-heif), "
+                         f"which is not installed here; or export the photo as JPEG") from exc
+    register_heif_opener()
+
+
 def _read_image(path: Path) -> np.ndarray:
     from PIL import Image, UnidentifiedImageError
 
+    if path.suffix.lower() in HEIF_SUFFIXES:
+        _register_heif(path)
     try:
         with Image.open(path) as im:
             im.load()
