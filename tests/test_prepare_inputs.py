@@ -391,3 +391,21 @@ def test_a_phones_heic_photo_is_read(tmp_path):
     frame = read_input(tmp_path / "photo.heic", max_side=None)[0].frames[0]
     assert frame.shape[:2] == upright.shape[:2]
     assert np.abs(frame.astype(float) - upright).mean() < 6.0
+
+
+def test_a_photo_whose_exif_cannot_be_read_keeps_its_stored_pixels(tmp_path, monkeypatch):
+    """An EXIF block Pillow cannot apply (here: its transpose raises) leaves the photo as stored
+    instead of refusing it."""
+    from PIL import ImageOps
+
+    from reconstruct.data.prepare.inputs import read_input
+
+    stored = _picture()
+    Image.fromarray(stored).save(tmp_path / "photo.png")
+
+    def broken(im, **kwargs):
+        raise SyntaxError("not a TIFF file")
+
+    monkeypatch.setattr(ImageOps, "exif_transpose", broken)
+    frame = read_input(tmp_path / "photo.png", max_side=None)[0].frames[0]
+    assert np.array_equal(frame, stored)

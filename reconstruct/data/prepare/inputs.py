@@ -48,7 +48,10 @@ def _upright_rgb(im) -> np.ndarray:
     PNG), laid over ``CUTOUT_BACKGROUND``."""
     from PIL import Image, ImageOps
 
-    im = ImageOps.exif_transpose(im) or im
+    try:
+        im = ImageOps.exif_transpose(im) or im
+    except Exception:  # noqa: BLE001 - a broken EXIF block: the pixels as stored, not a refused photo
+        pass
     if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
         rgba = im.convert("RGBA")
         base = Image.new("RGBA", rgba.size, CUTOUT_BACKGROUND + (255,))
