@@ -697,8 +697,6 @@ def _without_isolated_top(tested: list[int], max_break_rows: float) -> list[int]
     thighs touching below it (no gap, nothing tested), says nothing about where cloth begins. On the
     green-coat photo with the body fitted a little inside the outline, a 2-row notch 8.7 cm above
     the first gap between the thighs made the coat's cloth begin past ``max_start``."""
-    if len(tested) < 2:
-        return tested
     for i in range(1, len(tested)):
         if tested[i] - tested[i - 1] > max_break_rows:
             return tested[i:] if tested[i - 1] - tested[0] < max_break_rows else tested
