@@ -64,3 +64,27 @@ def test_trained_stage1_avatar_has_unseen_back_views(tiny_scene, tiny_config):
                          ViewSelectionConfig(num_azimuths=8, distance=3.0, size=64))
     by_az = {round(v.azimuth_deg): v for v in views if v.elevation_deg == 0}
     assert not by_az[0].unseen and by_az[180].unseen
+
+
+def test_the_seen_flags_are_moved_to_the_splats_device(monkeypatch):
+    """The seen flags live on the CPU; on a GPU the splats do not. The flags are composited on the
+    splats' device (here ``meta`` stands in for CUDA: the rasteriser stand-in checks the devices and
+    then renders the CPU copies)."""
+    from reconstruct.stage2 import view_selection
+
+    means, quats, scales, opacities, _ = sphere(400)
+    seen = means[:, 1] < 0
+    real = view_selection.rasterization
+    devices = []
+
+    def checked(m, q, s, o, feats, camera):
+        devices.append((m.device.type, feats.device.type))
+        assert feats.device == m.device, f"features on {feats.device}, splats on {m.device}"
+        return real(means, quats, scales, opacities, seen.float()[:, None], camera)
+
+    monkeypatch.setattr(view_selection, "rasterization", checked)
+    cam = candidate_cameras([0, 0, 0], ViewSelectionConfig())[0][0]
+    meta = [t.to("meta") for t in (means, quats, scales, opacities)]
+    ratio, _ = visibility_ratio(*meta, seen, cam)
+    assert devices == [("meta", "meta")]
+    assert ratio == pytest.approx(visibility_ratio(means, quats, scales, opacities, seen, cam)[0])

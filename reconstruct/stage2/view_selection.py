@@ -59,7 +59,7 @@ def candidate_cameras(target, config: ViewSelectionConfig, azimuth_offset_deg: f
 def visibility_ratio(means, quats, scales, opacities, seen: torch.Tensor, camera: Camera) -> tuple[float, torch.Tensor]:
     """Eq. 8-9: the visibility map I_v (Gaussians carry psi = 1 if seen else 0) and VR(I_v) / FR(I_v),
     the visible share of the rendered foreground (alpha-weighted)."""
-    psi = seen.to(means.dtype)[:, None]
+    psi = seen.to(device=means.device, dtype=means.dtype)[:, None]  # the flags live on the CPU
     out = rasterization(means, quats, scales, opacities, psi, camera)
     foreground = float(out.alpha.sum())
     if foreground <= 0:
