@@ -32,8 +32,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT))  # first: this folder's renderer.py must not shadow the package
 
 from reconstruct.camera import Camera  # noqa: E402
 from reconstruct.snapshot import Snapshot  # noqa: E402

@@ -1,6 +1,6 @@
 """Zero123 SDS step time on this machine, with randomly initialised models of the real architecture.
 
-    python benchmarks/zero123_sds.py [--full] [--steps N] [--threads 2]
+    python benchmarks/zero123_sds.py [--full] [--steps N] [--threads 2] [--device cpu|cuda]
 
 Each configuration runs in its own process (peak memory is per process). ``tiny`` is the test
 model, saved in diffusers layout and loaded through the loader; ``full`` is Zero123's full size
@@ -10,6 +10,8 @@ built in memory (random weights: timing only), in fp32 and bf16. Prints a table:
 UNet forward (the CFG batch of 2), reference conditioning (CLIP + VAE, once per reference); and
 the CPU seconds one SDS step uses over all threads (a number less sensitive to other jobs on a
 shared machine than the wall-clock times: uncontended wall time is about it / threads).
+With ``--device cuda`` the models run on the GPU, every timing waits for the GPU to finish, and
+the peak is the GPU memory torch allocated (``torch.cuda.max_memory_allocated``).
 """
 
 from __future__ import annotations
@@ -40,16 +42,18 @@ def child(cfg: dict) -> dict:
     from reconstruct.priors.zero123_random import build_random, save_random_zero123
 
     dtype = {"fp32": torch.float32, "bf16": torch.bfloat16}[cfg["dtype"]]
+    device = torch.device(cfg.get("device", "cpu"))
+    cuda = device.type == "cuda"
     t0 = time.perf_counter()
     if cfg["size"] == "tiny":
         with tempfile.TemporaryDirectory() as d:
             folder = save_random_zero123(Path(d) / "zero123-tiny", "tiny")
             t1 = time.perf_counter()
-            prior = Zero123Prior(folder, device="cpu", dtype=dtype, guidance_scale=3.0, seed=0)
+            prior = Zero123Prior(folder, device=device, dtype=dtype, guidance_scale=3.0, seed=0)
     else:
         unet, vae, clip, proj, sched = build_random(cfg["size"], seed=0)
         t1 = time.perf_counter()
-        prior = Zero123Prior(components=assemble(unet, vae, clip, proj, sched.alphas_cumprod, device="cpu",
+        prior = Zero123Prior(components=assemble(unet, vae, clip, proj, sched.alphas_cumprod, device=device,
                                                  dtype=dtype), guidance_scale=3.0, seed=0)
         del unet, vae, clip
     t2 = time.perf_counter()
@@ -57,8 +61,8 @@ def child(cfg: dict) -> dict:
     n_params = sum(p.numel() for m in (c.unet, c.vae.encoder, c.image_encoder) for p in m.parameters())
 
     g = torch.Generator().manual_seed(0)
-    ref = torch.rand(256, 256, 3, generator=g)
-    render = torch.rand(256, 256, 3, generator=g).requires_grad_(True)
+    ref = torch.rand(256, 256, 3, generator=g).to(device)
+    render = torch.rand(256, 256, 3, generator=g).to(device).requires_grad_(True)
     delta = CameraDelta(polar=0.2, azimuth=math.pi / 2)
 
     def timed(fn, n):
@@ -66,6 +70,8 @@ def child(cfg: dict) -> dict:
         for _ in range(n):
             s = time.perf_counter()
             fn()
+            if cuda:
+                torch.cuda.synchronize()
             out.append(time.perf_counter() - s)
         return statistics.median(out) * 1000
 
@@ -83,15 +89,18 @@ def child(cfg: dict) -> dict:
         render.grad = None
         prior.encode_render(render).sum().backward()
 
-    z = torch.randn(2, 8, 32, 32, dtype=dtype)
-    emb = torch.randn(2, 1, c.unet.config.cross_attention_dim, dtype=dtype)
-    tt = torch.tensor([500, 500])
+    z = torch.randn(2, 8, 32, 32, dtype=dtype, device=device)
+    emb = torch.randn(2, 1, c.unet.config.cross_attention_dim, dtype=dtype, device=device)
+    tt = torch.tensor([500, 500], device=device)
 
     def unet():
         with torch.no_grad():
             c.unet(z, tt, encoder_hidden_states=emb)
 
     sds()  # warm-up
+    if cuda:
+        torch.cuda.synchronize()
+        torch.cuda.reset_peak_memory_stats()
     n = cfg["steps"]
     c0 = time.process_time()
     step_ms = timed(sds, n)
@@ -105,7 +114,8 @@ def child(cfg: dict) -> dict:
                step_ms=step_ms, step_cpu_s=step_cpu_s, enc_fwd_ms=timed(enc_fwd, max(1, n // 2)),
                enc_fwd_bwd_ms=timed(enc_fwd_bwd, max(1, n // 2)), unet_ms=timed(unet, max(1, n // 2)),
                finite=finite, finite100=finite100,
-               peak_gb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2)
+               peak_gb=(torch.cuda.max_memory_allocated() / 1024 ** 3 if cuda
+                        else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2))
     return res
 
 
@@ -114,14 +124,18 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="also time the full-size model (fp32 and bf16; ~6 GB, minutes)")
     ap.add_argument("--steps", type=int, default=10, help="timed SDS steps for the tiny model (full: 3)")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument("--json", type=Path, help="also write the rows to this file")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         print(json.dumps(child(json.loads(args.child))))
         return
-    cfgs = [dict(size="tiny", dtype=d, steps=args.steps, threads=args.threads) for d in ("fp32", "bf16")]
+    base = dict(threads=args.threads, device=args.device)
+    cfgs = [dict(base, size="tiny", dtype=d, steps=args.steps) for d in ("fp32", "bf16")]
     if args.full:
-        cfgs += [dict(size="full", dtype=d, steps=3, threads=args.threads) for d in ("fp32", "bf16")]
+        full_steps = 10 if args.device == "cuda" else 3
+        cfgs += [dict(base, size="full", dtype=d, steps=full_steps) for d in ("fp32", "bf16")]
     env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE", TRANSFORMERS_VERBOSITY="error",
                DIFFUSERS_VERBOSITY="error", HF_HUB_OFFLINE="1")
     rows = []
@@ -133,10 +147,13 @@ def main() -> None:
             continue
         rows.append(json.loads(p.stdout.strip().splitlines()[-1]))
         print(f"done {cfg['size']} {cfg['dtype']}", file=sys.stderr)
-    print(f"Zero123 SDS step on CPU ({args.threads} threads, torch {__import__('torch').__version__}), random weights, "
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    where = "CUDA" if args.device == "cuda" else f"CPU, {args.threads} threads"
+    print(f"Zero123 SDS step on {where} (torch {__import__('torch').__version__}), random weights, "
           "256x256 render, CFG batch 2")
     head = ("model", "dtype", "params(M)", "build+load s", "ref cond ms", "VAE enc fwd ms", "enc fwd+bwd ms",
-            "UNet fwd ms", "SDS step ms", "step CPU s", "peak GB", "finite (CFG 3 / 100)")
+            "UNet fwd ms", "SDS step ms", "step CPU s", "peak GPU GB" if args.device == "cuda" else "peak GB", "finite (CFG 3 / 100)")
     print(" | ".join(head))
     print(" | ".join("-" * len(h) for h in head))
     for r in rows:

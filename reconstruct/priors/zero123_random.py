@@ -62,13 +62,16 @@ def build_random(size: str = "tiny", seed: int = 0):
 
 
 def save_random_zero123(folder: str | os.PathLike, size: str = "tiny", seed: int = 0,
-                        layout: str = "cc_projection") -> Path:
-    """Write a random model in diffusers layout (as ``save_pretrained`` of the Zero1to3 pipeline)."""
+                        layout: str = "cc_projection", dtype: torch.dtype | None = None) -> Path:
+    """Write a random model in diffusers layout (as ``save_pretrained`` of the Zero1to3 pipeline);
+    ``dtype`` casts the weights first (bf16 halves a full-size model's 4.6 GB)."""
     from transformers import CLIPVisionConfig  # noqa: F401 (fails early without the extra)
 
     root = Path(folder)
     root.mkdir(parents=True, exist_ok=True)
     unet, vae, clip, proj, scheduler = build_random(size, seed)
+    if dtype is not None:
+        unet, vae, clip, proj = (m.to(dtype) for m in (unet, vae, clip, proj))
     unet.save_pretrained(root / "unet")
     vae.save_pretrained(root / "vae")
     clip.save_pretrained(root / "image_encoder")
