@@ -188,6 +188,19 @@ def test_stage2_with_zero123_prior_runs_dual_space_steps(stage1, tmp_path):
     assert changed > 0
 
 
+def test_zero123_prior_loads_on_the_training_device(stage1, tmp_path, monkeypatch):
+    """On a machine with CUDA, a run trained on the CPU keeps its Zero123 on the CPU (the loader's
+    own default would be CUDA in bf16, and the SDS loss would land on another device than the rest).
+    CUDA is faked as present: loading it there would fail on this machine."""
+    pytest.importorskip("diffusers")
+    from reconstruct.priors.zero123_random import save_random_zero123
+
+    folder = save_random_zero123(tmp_path / "zero123-tiny", size="tiny", seed=0)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    s2 = _start(stage1, _cfg(prior="zero123", prior_path=str(folder), given_view_ratio=0.0, prior_size=64, iters=1))
+    assert s2.plan.prior.c.device == torch.device("cpu") and s2.plan.prior.c.dtype == torch.float32
+
+
 def test_snapshots_show_the_flags_stage2_uses(stage1):
     """The renderer's visibility mode shows Stage I's flags in Stage I and the eroded ones that
     drove view selection in Stage II."""

@@ -67,7 +67,9 @@ class Stage2Plan(StagePlan):
 
     def __init__(self, trainer: Trainer, settings: Stage2Config) -> None:
         self.settings = s2 = settings
-        extra = {"guidance_scale": s2.guidance_scale, "seed": trainer.config.seed} if s2.prior == "zero123" else {}
+        # Zero123 on the training's device (left to itself it takes CUDA whenever there is one)
+        extra = ({"guidance_scale": s2.guidance_scale, "seed": trainer.config.seed, "device": trainer.device}
+                 if s2.prior == "zero123" else {})
         self.prior = build_prior(s2.prior, s2.prior_path, **extra)
         # Zero123 was trained on objects over white: its renders and references are composited on white
         self.guidance_background = (torch.ones(3, device=trainer.device) if s2.prior == "zero123"
