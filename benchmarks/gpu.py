@@ -14,8 +14,9 @@ extras. Sections, each in its own process (a failure is reported and the next on
 - ``stage1``   Stage I on the default synthetic scene with ``--device cuda`` at a 256² and the
                paper's 512² positional map: steps/s, seen/unseen PSNR against wall time, peak memory;
 - ``zero123``  ``benchmarks/zero123_sds.py --full --device cuda``: full-size random Zero123, fp32/bf16;
-- ``stage2``   Stage II of the 256² run with that full-size random Zero123 (bf16) for a fixed
-               number of steps: ms per step by step kind, peak memory.
+- ``stage2``   Stage II of the 256² run, with the built-in prior and with that full-size random
+               Zero123 (bf16), for a fixed number of steps each: steps/s, peak memory;
+- ``stage1_skirt`` / ``stage2_skirt``  the same on a loose-clothing scene (the garment layer's path).
 
 ``OUT/report.md`` collects the tables; ``OUT/stage1_psnr_vs_time.png`` plots the curves. The
 ``--budget`` (seconds) stops starting sections that would not finish in it.
@@ -26,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -170,12 +172,13 @@ def write_report(out: Path, sections: dict) -> None:
     curves = {}
     lines += ["", "## Training on CUDA", "", "| run | stage | steps | steps/s | ms per step | Gaussians | "
               "seen / unseen PSNR (last eval) | peak / reserved GPU GB | wall s |", "|---|---|---|---|---|---|---|---|---|"]
-    for name, stage in (("stage1_256", 1), ("stage1_512", 1), ("stage2_256", 2)):
+    for name in ("stage1_256", "stage1_512", "stage1_skirt", "stage2_builtin", "stage2_zero123", "stage2_skirt"):
         info_path = out / f"{name}.json"
         if not info_path.is_file():
             continue
         info = json.loads(info_path.read_text())
-        s = _stage_summary(out / "runs" / name.replace("stage2", "stage1"), stage)  # Stage II continues that run
+        stage = int(name[5])
+        s = _stage_summary(out / "runs" / name, stage)
         if stage == 1 and "curve" in s:
             curves[name] = s["curve"]
         rate = s.get("steps_per_s", float("nan"))
@@ -267,26 +270,36 @@ def run_all(args) -> int:
                       "tests/test_raster_api.py", "tests/test_raster_projection.py"], 20, 120)
     section("raster", me + ["--child", "raster", "--out", str(out)], 20, 90)
     minutes = str(args.stage1_minutes)
-    common = ["train", "--scene", SCENE, "--device", "cuda", "--minutes", minutes, "--iters", "100000",
+    common = ["train", "--device", args.device, "--minutes", minutes, "--iters", "100000",
               "--eval-every", str(max(10.0, 60 * args.stage1_minutes / 6)), "--quiet"]
     need = 60 * args.stage1_minutes + 40
 
-    def stage1(res: int) -> None:
-        name = f"stage1_{res}"
-        argv = common + ["--out", str(runs / name), "--gaussian-res", str(res)]
+    def stage1(res: int, name: str | None = None, scene: str = SCENE) -> None:
+        name = name or f"stage1_{res}"
+        argv = common + ["--out", str(runs / name), "--gaussian-res", str(res), "--scene", scene]
         section(name, me + ["--child", "train", "--name", name, "--out", str(out), "--argv", json.dumps(argv)],
                 need, need + 120)
 
+    def stage2(name: str, source: str, extra: list[str], need_s: float) -> None:
+        """Stage II continuing a Stage I run of this command (in a copy: each Stage II its own)."""
+        if not (runs / source / "checkpoint.pt").is_file():
+            return
+        shutil.copytree(runs / source, runs / name, dirs_exist_ok=True)
+        argv = ["train", "--out", str(runs / name), "--stage", "2", "--device", args.device, "--quiet"] + extra
+        section(name, me + ["--child", "train", "--name", name, "--out", str(out), "--argv", json.dumps(argv)],
+                need_s, need_s + 240)
+
     stage1(256)
-    section("zero123", [sys.executable, "benchmarks/zero123_sds.py", "--full", "--device", "cuda", "--steps", "5",
+    stage2("stage2_builtin", "stage1_256", ["--stage2-iters", str(5 * args.stage2_iters)], 60)
+    section("zero123", [sys.executable, "benchmarks/zero123_sds.py", "--full", "--device", args.device, "--steps", "5",
                         "--json", str(out / "zero123.json")], 60, 240)
     z = Path(os.environ.get("TMPDIR", "/tmp")) / "zero123-full-random"
     if (runs / "stage1_256" / "checkpoint.pt").is_file() and section(
             "stage2_save_zero123", me + ["--child", "save_zero123", "--out", str(z)], 60, 180) == 0:
-        stage2 = ["train", "--out", str(runs / "stage1_256"), "--stage", "2", "--device", "cuda", "--prior",
-                  "zero123", "--prior-path", str(z), "--stage2-iters", str(args.stage2_iters), "--quiet"]
-        section("stage2_256", me + ["--child", "train", "--name", "stage2_256", "--out", str(out),
-                                    "--argv", json.dumps(stage2)], 40, 300)
+        stage2("stage2_zero123", "stage1_256", ["--prior", "zero123", "--prior-path", str(z), "--stage2-iters",
+                                                str(args.stage2_iters)], 40)
+    stage1(256, "stage1_skirt", "synthetic:seed=0,clothing=skirt")  # the garment layer's path
+    stage2("stage2_skirt", "stage1_skirt", ["--stage2-iters", str(5 * args.stage2_iters)], 60)
     stage1(512)
     write_report(out, sections)
     print((out / "report.md").read_text())
@@ -302,8 +315,11 @@ def main(argv=None) -> int:
     ap.add_argument("--stage2-iters", type=int, default=60)
     ap.add_argument("--budget", type=float, default=480.0, help="seconds; sections that would overrun are skipped")
     ap.add_argument("--sections", default=None,
-                    help="comma-separated: renderer,tests,raster,stage1,stage1_256,stage1_512,zero123,stage2 "
+                    help="comma-separated: renderer,tests,raster,stage1,stage1_256,stage1_512,stage1_skirt,zero123,"
+                         "stage2,stage2_builtin,stage2_zero123,stage2_skirt "
                          "(env and the builds always run; default all)")
+    ap.add_argument("--device", default="cuda", choices=["cuda", "cpu"],
+                    help="cpu: a dry run of the plumbing on a machine without a GPU (short settings)")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--name", help=argparse.SUPPRESS)
     ap.add_argument("--argv", help=argparse.SUPPRESS)
