@@ -310,3 +310,18 @@ def test_in_memory_components_match_loaded(folder, components, images):
     a = Zero123Prior(components=mem, fixed_timestep=321, fixed_noise=noise).loss(_inp(images[0], images[1]))
     b = Zero123Prior(components=components, fixed_timestep=321, fixed_noise=noise).loss(_inp(images[0], images[1]))
     assert a.loss.item() == pytest.approx(b.loss.item(), rel=1e-5)
+
+
+def test_a_random_model_saved_in_bf16_loads_with_its_weights(tmp_path):
+    """``save_random_zero123(dtype=bf16)`` (the GPU benchmark's full-size model at half the size)
+    writes bf16 weights that load as the same model."""
+    from safetensors import safe_open
+
+    folder = save_random_zero123(tmp_path / "bf16", "tiny", seed=0, dtype=torch.bfloat16)
+    with safe_open(str(folder / "unet" / "diffusion_pytorch_model.safetensors"), "pt") as f:
+        dtypes = {f.get_tensor(k).dtype for k in f.keys()}
+    assert dtypes == {torch.bfloat16}
+    unet = build_random("tiny", seed=0)[0]
+    loaded = Zero123Prior(folder, device="cpu", dtype=torch.float32).c.unet
+    for (name, a), b in zip(unet.state_dict().items(), loaded.state_dict().values()):
+        assert torch.equal(a.to(torch.bfloat16).float(), b), name
