@@ -51,7 +51,9 @@ def _stage1_config(args):
     from reconstruct import config as config_layer
     from reconstruct.train.config import Stage1Config
 
-    kw: dict = {"device": args.device, "seed": args.seed}
+    kw: dict = {"seed": args.seed}
+    if args.device:
+        kw["device"] = args.device
     avatar = {k: v for k, v in (("gaussian_resolution", args.gaussian_res), ("hidden", args.hidden)) if v}
     if avatar:
         kw["avatar"] = avatar
@@ -82,7 +84,7 @@ def _cmd_train(args) -> int:
         if not torch.cuda.is_available():
             raise RuntimeError("--device cuda: CUDA is not available on this machine")
     train(args.scene, args.out, _stage1_config(args), progress=not args.quiet, stage=args.stage,
-          stage2=_stage2_overrides(args), allow_incomplete=args.allow_incomplete)
+          stage2=_stage2_overrides(args), allow_incomplete=args.allow_incomplete, device=args.device)
     return 0
 
 
@@ -287,7 +289,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--stage", default="1", choices=["1", "2", "all"])
     s.add_argument("--iters", type=int, default=None)
     s.add_argument("--minutes", type=float, default=None, help="wall-clock budget (whichever of iters/minutes ends first)")
-    s.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    s.add_argument("--device", default=None, choices=["cpu", "cuda"],
+                   help="where to train (default: the run's own device when resuming, else cpu; a run trained "
+                        "on CUDA continues on the CPU where there is none)")
     s.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--gaussian-res", type=int, default=None, help="positional UV map resolution (one Gaussian per texel)")

@@ -75,14 +75,15 @@ def _enter_stage2(trainer, run: RunFolder, stage2, allow_incomplete: bool):
 
 
 def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True, stage: str = "1", stage2=None,
-          allow_incomplete: bool = False):
+          allow_incomplete: bool = False, device: str | None = None):
     """Train until the run's steps or minutes are used up; returns the trainer. ``stage``: "1",
-    "2" (continue the run's Stage I, or resume its Stage II) or "all"."""
+    "2" (continue the run's Stage I, or resume its Stage II) or "all". ``device``: "cpu" or
+    "cuda", or None for the one the run (or ``config``) names (``RunFolder.placed_on``)."""
     run = RunFolder(run_dir)
     if stage == "2":
-        return train_stage2(run_dir, stage2, allow_incomplete=allow_incomplete, progress=progress)
+        return train_stage2(run_dir, stage2, allow_incomplete=allow_incomplete, progress=progress, device=device)
     with run.lock():
-        trainer = run.open(scene_spec, config, progress=progress)
+        trainer = run.open(scene_spec, config, progress=progress, device=device)
         if trainer.stage == 2:
             if stage == "1":
                 raise RuntimeError(f"{run_dir}: this run is already in Stage II (use --stage 2 to continue it)")
@@ -97,7 +98,7 @@ def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True, stag
 
 
 def train_stage2(run_dir: Path, stage2_overrides: dict | None = None, *, allow_incomplete: bool = False,
-                 progress: bool = True):
+                 progress: bool = True, device: str | None = None):
     """Continue a run with Stage II: from its finished Stage I checkpoint, or resume its Stage II.
     ``stage2_overrides``: Stage II settings given on the command line (the rest from the checkpoint
     when resuming, else the paper's defaults)."""
@@ -111,7 +112,7 @@ def train_stage2(run_dir: Path, stage2_overrides: dict | None = None, *, allow_i
         raise FileNotFoundError(f"{run_dir}: no such run folder; train Stage I first (train --stage 1 --out {run_dir})")
     run.check("continue with Stage II")
     with run.lock():
-        trainer = run.resume_training(stage2_overrides=overrides, progress=progress)
+        trainer = run.resume_training(stage2_overrides=overrides, progress=progress, device=device)
         if trainer.stage == 2:
             print(f"resuming Stage II of {run_dir} at Stage II step {trainer.stage_step}", file=sys.stderr)
         else:

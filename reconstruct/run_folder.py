@@ -13,6 +13,7 @@ the single dispatch on the checkpoint's stage -- and the switch to Stage II. ``t
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sys
@@ -30,6 +31,19 @@ INFO_NAME = "run.json"
 METRICS_NAME = "metrics.jsonl"
 LOCK_NAME = ".lock"
 
+
+
+def placed_on(config: Stage1Config, device: str | None, where: str) -> Stage1Config:
+    """``config`` to run on ``device`` ("cpu" or "cuda"; None: the device the settings name). The
+    device is where this process runs, not part of the run: a run trained on a GPU opens on a
+    machine without one, on the CPU (with a note); asking for CUDA where there is none is an error."""
+    want = device or config.device
+    if want == "cuda" and not torch.cuda.is_available():
+        if device == "cuda":
+            raise RuntimeError("--device cuda: CUDA is not available on this machine")
+        print(f"{where}: trained on CUDA; this machine has none, so it runs on the CPU", file=sys.stderr)
+        want = "cpu"
+    return config if want == config.device else dataclasses.replace(config, device=want)
 
 class RunLockedError(RuntimeError):
     pass
@@ -148,17 +162,17 @@ class RunFolder:
         return trainer
 
     def resume(self, scene=None, config: Stage1Config | None = None, stage2_overrides: dict | None = None,
-               *, progress: bool = False) -> Trainer:
+               *, progress: bool = False, device: str | None = None) -> Trainer:
         """The trainer of this folder's checkpoint (read once), on its own scene unless ``scene``
         is given, with its own settings unless ``config`` / ``stage2_overrides`` replace them:
         Stage I, or the Stage II plan when the run is in Stage II. Nothing in the folder is
-        changed (``eval``, ``export``)."""
+        changed (``eval``, ``export``). ``device``: where to run (``placed_on``)."""
         from .stage2.plan import restore_stage2
 
         state = load_checkpoint(self.checkpoint)
         if scene is None:
             scene = self.load_scene(progress=progress)
-        cfg = config or Stage1Config.from_dict(state["config"])
+        cfg = placed_on(config or Stage1Config.from_dict(state["config"]), device, str(self.path))
         stage = int(state.get("stage", 1))
         if stage == 2:
             plan = lambda t: restore_stage2(t, state["plan"], stage2_overrides)  # noqa: E731
@@ -189,10 +203,10 @@ class RunFolder:
         return load_edits(self.path, model.num_gaussians, model)
 
     def resume_training(self, scene=None, config: Stage1Config | None = None, stage2_overrides: dict | None = None,
-                        *, progress: bool = False) -> Trainer:
+                        *, progress: bool = False, device: str | None = None) -> Trainer:
         """``resume`` to train on: the metrics log's records after the checkpoint's step are
         dropped (those steps are redone). Hold the lock."""
-        trainer = self.resume(scene, config, stage2_overrides, progress=progress)
+        trainer = self.resume(scene, config, stage2_overrides, progress=progress, device=device)
         trainer.log.truncate_after(trainer.step_count)
         if trainer.stage == 2 and trainer.plan.sync_visibility(trainer.state):
             print(f"{self.path}: the painted visibility changed: Stage II's views and propagated colours redone",
@@ -205,9 +219,11 @@ class RunFolder:
 
         return load_scene(recorded_scene_spec(self.info()["scene"]), progress=progress)
 
-    def open(self, scene_spec: str, config: Stage1Config | None = None, *, progress: bool = True) -> Trainer:
+    def open(self, scene_spec: str, config: Stage1Config | None = None, *, progress: bool = True,
+             device: str | None = None) -> Trainer:
         """Resume the folder's run when it has a checkpoint -- on the run's own scene, with the
-        checkpoint's settings unless ``config`` is given -- else start one on ``scene_spec``."""
+        checkpoint's settings unless ``config`` is given -- else start one on ``scene_spec``;
+        ``device`` as in ``placed_on``."""
         from .data.load import canonical_scene_spec, load_scene, recorded_scene_spec
 
         resuming = self.has_checkpoint
@@ -220,13 +236,13 @@ class RunFolder:
         print(scene.summary(), file=sys.stderr)
         if resuming:
             try:
-                trainer = self.resume_training(scene, config)
+                trainer = self.resume_training(scene, config, device=device)
             except CheckpointError as exc:
                 raise CheckpointError(f"{exc}; the run folder is left as it is (move the checkpoint away to start "
                                       f"over)") from exc
             print(f"resuming {self.path} at step {trainer.step_count}", file=sys.stderr)
             return trainer
-        return self.new_trainer(scene, config or Stage1Config(), scene_spec)
+        return self.new_trainer(scene, placed_on(config or Stage1Config(), device, str(self.path)), scene_spec)
 
     def start_stage2(self, trainer: Trainer, settings, *, allow_incomplete: bool = False):
         """Switch ``trainer`` (this folder's, in Stage I) to Stage II and record it in the run info."""

@@ -1,4 +1,5 @@
 import json
+import math
 import os
 
 import numpy as np
@@ -113,6 +114,34 @@ def test_evaluation_reports_seen_and_unseen(tiny_scene, tiny_config):
     assert len(rows) == len(tiny_scene.eval_views)
     assert summary["seen_psnr"] is not None and summary["unseen_psnr"] is not None
     assert summary["seen_lpips"] is None  # no weights given
+
+
+def test_a_run_trained_on_cuda_opens_where_there_is_none(tiny_scene, tiny_config, tmp_path, monkeypatch, capsys):
+    """The device is where this process runs, not part of the run: a checkpoint whose settings name
+    CUDA opens on the CPU on a machine without it (with a note), and resumes there as it would have;
+    asking for CUDA explicitly there is an error. CUDA is made absent even where a GPU is."""
+    import dataclasses
+
+    from reconstruct.run_folder import placed_on
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    run = tmp_path / "run"
+    run.mkdir()
+    t = Trainer(tiny_scene, tiny_config, run)
+    for _ in range(3):
+        t.step()
+    state = t.state_dict()
+    state["config"] = {**state["config"], "device": "cuda"}  # as a GPU machine wrote it
+    save_checkpoint(state, run / CHECKPOINT_NAME)
+    capsys.readouterr()
+    resumed = RunFolder(run).resume(tiny_scene)
+    assert resumed.config.device == "cpu" and resumed.state.device == torch.device("cpu")
+    assert "trained on CUDA; this machine has none, so it runs on the CPU" in capsys.readouterr().err
+    assert resumed.step_count == 3 and math.isfinite(resumed.step()["loss"])
+    with pytest.raises(RuntimeError, match="--device cuda: CUDA is not available"):
+        RunFolder(run).resume(tiny_scene, device="cuda")
+    cuda_cfg = dataclasses.replace(tiny_config, device="cuda")
+    assert placed_on(cuda_cfg, "cpu", "x").device == "cpu" and placed_on(tiny_config, None, "x") is tiny_config
 
 
 def test_cli_train_eval_and_bad_input(tmp_path, capsys):
