@@ -9,7 +9,8 @@ extras. Sections, each in its own process (a failure is reported and the next on
 - ``build``    gsplat's CUDA extension, this project's CPU kernel and the Anny body-model cache,
                built side by side while ``renderer`` runs (their build times are in the report);
 - ``renderer`` the splat renderer, headless EGL on the GPU (``benchmarks/renderer.py``);
-- ``tests``    the rasterizer's tests (the ``gpu``-marked gsplat comparison among them), printed errors kept;
+- ``tests``    the rasterizer's tests (the ``gpu``-marked gsplat comparison among them) and the whole
+               path at toy size on CUDA (``tests/test_device_path.py``), printed errors kept;
 - ``raster``   gsplat against the pure-torch backend on CUDA: forward and forward+backward ms;
 - ``stage1``   Stage I on the default synthetic scene with ``--device cuda`` at a 256² and the
                paper's 512² positional map: steps/s, seen/unseen PSNR against wall time, peak memory;
@@ -267,7 +268,8 @@ def run_all(args) -> int:
     write_report(out, sections)
 
     section("tests", [sys.executable, "-m", "pytest", "-q", "-s", "-p", "no:cacheprovider", "-rs",
-                      "tests/test_raster_api.py", "tests/test_raster_projection.py"], 20, 120)
+                      "tests/test_raster_api.py", "tests/test_raster_projection.py", "tests/test_device_path.py"],
+            30, 180)
     section("raster", me + ["--child", "raster", "--out", str(out)], 20, 90)
     minutes = str(args.stage1_minutes)
     common = ["train", "--device", args.device, "--minutes", minutes, "--iters", "100000",
