@@ -78,7 +78,7 @@ def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True, stag
           allow_incomplete: bool = False, device: str | None = None):
     """Train until the run's steps or minutes are used up; returns the trainer. ``stage``: "1",
     "2" (continue the run's Stage I, or resume its Stage II) or "all". ``device``: "cpu" or
-    "cuda", or None for the one the run (or ``config``) names (``RunFolder.placed_on``)."""
+    "cuda", or None for the one the run (or ``config``) names (``run_folder.placed_on``)."""
     run = RunFolder(run_dir)
     if stage == "2":
         return train_stage2(run_dir, stage2, allow_incomplete=allow_incomplete, progress=progress, device=device)

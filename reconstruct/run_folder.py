@@ -32,7 +32,6 @@ METRICS_NAME = "metrics.jsonl"
 LOCK_NAME = ".lock"
 
 
-
 def placed_on(config: Stage1Config, device: str | None, where: str) -> Stage1Config:
     """``config`` to run on ``device`` ("cpu" or "cuda"; None: the device the settings name). The
     device is where this process runs, not part of the run: a run trained on a GPU opens on a
@@ -44,6 +43,7 @@ def placed_on(config: Stage1Config, device: str | None, where: str) -> Stage1Con
         print(f"{where}: trained on CUDA; this machine has none, so it runs on the CPU", file=sys.stderr)
         want = "cpu"
     return config if want == config.device else dataclasses.replace(config, device=want)
+
 
 class RunLockedError(RuntimeError):
     pass
