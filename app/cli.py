@@ -235,8 +235,9 @@ def _cmd_migrate(args) -> int:
 def _cmd_studio(args) -> int:
     from app.studio.window import NO_DISPLAY_MESSAGE, NoDisplayError, display_available
 
-    if args.studio_ply is not None and (args.studio_run is not None or args.studio_scene is not None):
-        raise ValueError("--ply opens the .ply viewer (no training); it cannot go with --scene or --run")
+    if args.studio_ply is not None and (args.studio_run is not None or args.studio_scene is not None
+                                        or args.studio_device is not None):
+        raise ValueError("--ply opens the .ply viewer (no training); it cannot go with --scene, --run or --device")
     if not display_available():
         print(NO_DISPLAY_MESSAGE)
         return 1
@@ -247,7 +248,7 @@ def _cmd_studio(args) -> int:
             return run_viewer(args.studio_ply)
         from app.studio.window import run_studio
 
-        return run_studio(args.studio_scene or DEFAULT_SCENE, args.studio_run)
+        return run_studio(args.studio_scene or DEFAULT_SCENE, args.studio_run, device=args.studio_device)
     except NoDisplayError:
         print(NO_DISPLAY_MESSAGE)
         return 1
@@ -261,6 +262,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"studio: scene folder or synthetic:seed=S to train on (default {DEFAULT_SCENE})")
     p.add_argument("--run", dest="studio_run", metavar="RUN", type=Path, default=None,
                    help="studio: run folder (resumes its checkpoint; saved to on exit)")
+    p.add_argument("--device", dest="studio_device", choices=["cpu", "cuda"], default=None,
+                   help="studio: where to train (default: a resumed run's own device, else cpu)")
     p.add_argument("--ply", dest="studio_ply", metavar="FILE", type=Path, default=None,
                    help="studio: view a 3DGS .ply (ours or any other program's) without training")
     sub = p.add_subparsers(dest="command")

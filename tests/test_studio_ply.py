@@ -276,4 +276,4 @@ def test_malformed_ply_at_start_is_an_error_window(tmp_path, avatar_ply):
     # the command line: --ply with --run is refused before any window opens
     proc = subprocess.run([sys.executable, "-m", "app.cli", "--ply", str(bad), "--run", str(tmp_path)],
                           capture_output=True, text=True, check=False, timeout=120, cwd=str(ROOT))
-    assert proc.returncode == 2 and "cannot go with --scene or --run" in proc.stderr
+    assert proc.returncode == 2 and "cannot go with --scene, --run or --device" in proc.stderr

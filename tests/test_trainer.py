@@ -216,3 +216,35 @@ def test_snapshots_cross_threads(tiny_scene, tiny_config):
     final = s.snapshots.latest()
     assert final.version == 3 and final.step == 3
     assert seen_versions == sorted(seen_versions)
+
+
+def test_the_studio_opens_on_the_device_asked_for(tiny_scene, tiny_config, tmp_path, monkeypatch, capsys):
+    """The studio's --device reaches its trainer (a new avatar and a resumed run), and a run
+    trained on CUDA opens in the studio on a machine without it. CUDA is made absent."""
+    import dataclasses
+
+    from app.cli import build_parser
+    from app.studio import window
+
+    assert build_parser().parse_args(["--device", "cuda"]).studio_device == "cuda"
+    assert build_parser().parse_args([]).studio_device is None
+    monkeypatch.setattr("reconstruct.data.load.load_scene", lambda spec, progress=False: tiny_scene)  # no build
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    cuda_cfg = dataclasses.replace(tiny_config, device="cuda")
+    trainer, run, lock = window._open_trainer("synthetic:seed=1", None, cuda_cfg, False, "cpu")
+    assert trainer.config.device == "cpu" and run is None
+    with pytest.raises(RuntimeError, match="--device cuda: CUDA is not available"):
+        window._open_trainer("synthetic:seed=1", None, tiny_config, False, "cuda")
+    folder = tmp_path / "run"
+    folder.mkdir()
+    t = Trainer(tiny_scene, tiny_config, folder)
+    t.step()
+    state = t.state_dict()
+    state["config"] = {**state["config"], "device": "cuda"}
+    save_checkpoint(state, folder / CHECKPOINT_NAME)
+    (folder / "run.json").write_text(json.dumps({"scene": "synthetic:seed=1", "stage": 1}))
+    trainer, run, lock = window._open_trainer("synthetic:seed=1", folder, None, False)
+    try:
+        assert trainer.config.device == "cpu" and trainer.step_count == 1
+    finally:
+        lock.release()

@@ -641,21 +641,24 @@ def _error_loop(win, ctx, message: str, *, max_frames, screenshot, max_fps: floa
             break
 
 
-def _open_trainer(scene_spec: str, run_dir, config, progress: bool):
+def _open_trainer(scene_spec: str, run_dir, config, progress: bool, device: str | None = None):
     """(trainer, run folder or None, its lock or None): a run folder is locked for the window's
-    lifetime, so a second trainer on it -- from a window or the command line -- is refused."""
+    lifetime, so a second trainer on it -- from a window or the command line -- is refused.
+    ``device`` as in ``run_folder.placed_on`` (None: the run's or the settings' own)."""
     from reconstruct.data.load import load_scene
-    from reconstruct.run_folder import RunFolder
+    from reconstruct.run_folder import RunFolder, placed_on
+    from reconstruct.train.config import Stage1Config
     from reconstruct.train.trainer import Trainer
 
     if run_dir is None:
+        config = placed_on(config or Stage1Config(), device, scene_spec)
         scene = load_scene(scene_spec, progress=progress)
         return Trainer(scene, config, None, scene_spec=scene_spec), None, None
     run = RunFolder(run_dir)
     lock = run.lock()
     lock.__enter__()
     try:
-        return run.open(scene_spec, config, progress=progress), run, lock
+        return run.open(scene_spec, config, progress=progress, device=device), run, lock
     except BaseException:
         lock.release()
         raise
@@ -697,12 +700,14 @@ def gui_window(size=(1280, 800), pacer: FramePacer | None = None, title: str = "
 def run_studio(scene_spec: str, run_dir=None, *, config=None, size=(1280, 800), max_frames: int | None = None,
                script: Callable[[StudioApp], None] | None = None, screenshot=None, publish_every: int = 5,
                progress: bool = True, max_fps: float = 30.0, idle_fps: float = 5.0, active_s: float = 1.5,
-               idle_refresh_s: float = 1.0, gui_nice: int | None = 10, rects_path=None) -> int:
+               idle_refresh_s: float = 1.0, gui_nice: int | None = 10, rects_path=None,
+               device: str | None = None) -> int:
     """Open the studio on ``scene_spec`` (training a new avatar, or resuming ``run_dir``'s checkpoint)
     and run until the window closes, ``max_frames`` frames were drawn, or ``script`` calls
     ``app.close()``; closing saves a checkpoint first when there is a run folder. ``screenshot``:
     PNG of the last frame. Returns 0, or 2 when the scene or run could not be opened (the error is
-    shown in the window and on stderr). Raises NoDisplayError without a display."""
+    shown in the window and on stderr). Raises NoDisplayError without a display. ``device``: where
+    to train ("cpu" or "cuda"; None: a resumed run's own device, else the settings')."""
     from reconstruct.run_folder import RunLockedError
 
     pacer = FramePacer(max_fps=max_fps, idle_fps=idle_fps, active_s=active_s, idle_refresh_s=idle_refresh_s)
@@ -710,7 +715,7 @@ def run_studio(scene_spec: str, run_dir=None, *, config=None, size=(1280, 800), 
         thread = app = lock = None
         try:
             try:
-                trainer, run, lock = _open_trainer(scene_spec, run_dir, config, progress)
+                trainer, run, lock = _open_trainer(scene_spec, run_dir, config, progress, device)
             except Exception as exc:  # noqa: BLE001 -- any failure to open is shown, not a crash
                 if isinstance(exc, RunLockedError):
                     what, message = "the run folder", str(exc)
