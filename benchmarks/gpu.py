@@ -11,7 +11,9 @@ extras. Sections, each in its own process (a failure is reported and the next on
 - ``renderer`` the splat renderer, headless EGL on the GPU (``benchmarks/renderer.py``);
 - ``tests``    the rasterizer's tests (the ``gpu``-marked gsplat comparison among them) and the whole
                path at toy size on CUDA (``tests/test_device_path.py``), printed errors kept;
-- ``raster``   gsplat against the pure-torch backend on CUDA: forward and forward+backward ms;
+- ``raster``   gsplat against the pure-torch backend on CUDA: forward and forward+backward ms, and
+               gsplat with the first-hit ids Stage I asks for at every step (they come from the
+               pure-torch compositor);
 - ``stage1``   Stage I on the default synthetic scene with ``--device cuda`` at a 256² and the
                paper's 512² positional map: steps/s, seen/unseen PSNR against wall time, peak memory;
 - ``zero123``  ``benchmarks/zero123_sds.py --full --device cuda``: full-size random Zero123, fp32/bf16;
@@ -90,7 +92,7 @@ def child_raster(out: Path) -> None:
                           scales=torch.rand(n, 3, generator=g) * 0.01 + 0.002,
                           opacities=torch.rand(n, generator=g) * 0.9 + 0.05, features=torch.rand(n, 3, generator=g))
             cam = Camera.look_at((0, 0, 0), (0, 0, 3.0), (0, -1, 0), fov_y_deg=40.0, width=size, height=size)
-            for backend in ("gsplat", "torch"):
+            for backend, first_hit in (("gsplat", False), ("gsplat", True), ("torch", False)):
                 if backend == "torch" and (n > 65536 or size > 512):
                     continue  # the pure-torch backend's pair lists grow past sense here
                 x = {k: v.cuda().requires_grad_() for k, v in leaves.items()}
@@ -99,13 +101,13 @@ def child_raster(out: Path) -> None:
                     for what in ("fwd", "fwd_bwd"):
                         torch.cuda.synchronize()
                         t0 = time.perf_counter()
-                        o = rasterization(*x.values(), cam, backend=backend)
+                        o = rasterization(*x.values(), cam, backend=backend, return_first_hit=first_hit)
                         if what == "fwd_bwd":
                             (o.image.sum() + o.alpha.sum()).backward()
                         torch.cuda.synchronize()
                         if it > 0:
                             times[what].append((time.perf_counter() - t0) * 1000)
-                row = dict(backend=backend, gaussians=n, size=size,
+                row = dict(backend=backend + (" + first hit" if first_hit else ""), gaussians=n, size=size,
                            fwd_ms=sorted(times["fwd"])[len(times["fwd"]) // 2],
                            fwd_bwd_ms=sorted(times["fwd_bwd"])[len(times["fwd_bwd"]) // 2])
                 rows.append(row)
