@@ -42,7 +42,7 @@ def _cmd_demo(args) -> int:
     from app.demo import run_demo
 
     return run_demo(args.scene, Path(args.out), minutes=args.minutes, stage2_minutes=args.stage2_minutes,
-                    threads=args.threads)
+                    threads=args.threads, device=args.device)
 
 
 def _stage1_config(args):
@@ -392,6 +392,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--minutes", type=float, default=3.0, help="Stage I training time")
     s.add_argument("--stage2-minutes", type=float, default=2.0, help="Stage II training time (0: Stage I only)")
     s.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
+    s.add_argument("--device", default=None, choices=["cpu", "cuda"], help="where to train (default: cpu)")
     s.set_defaults(func=_cmd_demo)
 
     from app.prepare_cmd import add_prepare_parser

@@ -37,3 +37,16 @@ def test_comparison_sheet_has_a_row_per_avatar(tiny_scene, tiny_config, tmp_path
     one = iio.imread(write_comparison_sheet(s1, tmp_path / "one.png"))
     two = iio.imread(write_comparison_sheet(s1, tmp_path / "two.png", others=[("stage II", t.avatar())]))
     assert two.shape[0] > one.shape[0] * 1.3 and two.shape[1] == one.shape[1]
+
+
+def test_demo_device_reaches_training(tmp_path, monkeypatch, capsys):
+    """``demo --device cuda`` trains on CUDA: where there is none (made absent here) that is the
+    clear error of ``train``, with exit 2 and nothing half-written in the run folder."""
+    import torch
+
+    from app.cli import main
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert main(["demo", "--scene", SCENE, "--out", str(tmp_path), "--minutes", "0.05", "--device", "cuda"]) == 2
+    assert "--device cuda: CUDA is not available on this machine" in capsys.readouterr().err
+    assert not (tmp_path / "run" / "checkpoint.pt").exists()
