@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from reconstruct.data.load import load_scene  # noqa: E402
-from reconstruct.data.prepare.evaluate import in_prepared_frame, joint_errors  # noqa: E402
+from reconstruct.data.prepare.evaluate import in_prepared_frame, joint_errors, prepared_crop  # noqa: E402
 from reconstruct.data.prepare.silhouette import mesh_silhouette  # noqa: E402
 from reconstruct.data.scene_io import read_scene  # noqa: E402
 
@@ -50,6 +50,7 @@ def write_video(scene, path: Path) -> None:
 def fit_against_truth(truth, folder: Path) -> dict[str, float]:
     """The prepared scene's fitted body against the synthetic scene's true body."""
     fitted = read_scene(folder)
+    crop = prepared_crop(folder)
     by_index = {f.index: f for f in truth.frames}
     used = [f.index for f in fitted.frames]
     fb, tb = fitted.body_model(), truth.body_model()
@@ -60,7 +61,7 @@ def fit_against_truth(truth, folder: Path) -> dict[str, float]:
         for f in fitted.frames[::EVERY]:
             t = by_index[f.index]
             true_sil = mesh_silhouette(tb.posed_vertices(t.pose).numpy(), tb.faces.numpy(), t.camera)
-            true_sil = in_prepared_frame(true_sil, folder) > 0.5
+            true_sil = in_prepared_frame(true_sil, crop) > 0.5
             fit_sil = mesh_silhouette(fb.posed_vertices(f.pose).numpy(), fb.faces.numpy(), f.camera)
             ious.append((fit_sil & true_sil).sum() / max((fit_sil | true_sil).sum(), 1))
             outside.append((fit_sil & ~true_sil).sum() / max(fit_sil.sum(), 1))

@@ -319,21 +319,21 @@ def test_prepare_refuses_a_body_without_the_anny_bones(tmp_path):
 
 
 def test_a_map_of_the_source_frame_is_cropped_as_prepare_cropped_it(tmp_path):
-    """``in_prepared_frame`` (the truth's masks compared with a prepared scene's fitted body) reads the
-    crop from the scene's report: a 20 px box from x = 10 resized to 10 px takes every other pixel's
-    pair; a folder without the report is a clear error that names the file."""
-    from reconstruct.data.prepare.evaluate import in_prepared_frame
+    """``in_prepared_frame`` (the truth's masks compared with a prepared scene's fitted body) with the
+    crop read from the scene's report (``prepared_crop``): a 20 px box from x = 10 resized to 10 px
+    takes every other pixel's pair; a folder without the report is a clear error that names the file."""
+    from reconstruct.data.prepare.evaluate import in_prepared_frame, prepared_crop
 
     src = np.zeros((20, 40), np.float32)
     src[4:8, 14:18] = 1.0  # a 4 px square 4 px right of the crop's left edge
     (tmp_path / "prepare_report.json").write_text(json.dumps(
         {"crop": {"x0": 10, "y0": 0, "width": 20, "height": 20, "out_width": 10, "out_height": 10}}))
-    out = in_prepared_frame(src, tmp_path)
+    out = in_prepared_frame(src, prepared_crop(tmp_path))
     assert out.shape == (10, 10)
     assert np.argwhere(out > 0.5).min(0).tolist() == [2, 2] and np.argwhere(out > 0.5).max(0).tolist() == [3, 3]
     assert out[:, 6:].max() == 0.0 and abs(float(out.sum()) - 4.0) < 0.5
     with pytest.raises(ValueError, match=r"prepare_report\.json"):
-        in_prepared_frame(src, tmp_path / "missing")
+        prepared_crop(tmp_path / "missing")
 
 
 def _picture(h: int = 48, w: int = 32) -> np.ndarray:

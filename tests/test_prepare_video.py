@@ -28,7 +28,7 @@ from detector_helpers import detector_python
 from reconstruct.data.prepare import (Detections, DetectorError, MediapipeDetector, NoPersonError,
                                       PersonDetector, VideoError, parse_mediapipe_output, prepare_video)
 from reconstruct.data.prepare.detector import find_detector_python
-from reconstruct.data.prepare.evaluate import in_prepared_frame, joint_errors, mask_iou
+from reconstruct.data.prepare.evaluate import in_prepared_frame, joint_errors, mask_iou, prepared_crop
 from reconstruct.data.prepare.keypoints import NUM_LANDMARKS, KeypointMap
 from reconstruct.data.prepare.silhouette import mesh_silhouette
 from reconstruct.data.scene_io import read_scene
@@ -66,9 +66,9 @@ def _fit_errors(synth, scene_folder: Path, scale_align: bool = False) -> tuple[n
     fit_body, true_body = scene.body_model(), synth.body_model()
     err = joint_errors(fit_body, [f.pose for f in scene.frames], scene.frames[0].camera, true_body,
                        [gt[i].pose for i in used], gt[used[0]].camera, scale_align=scale_align)
-    faces = fit_body.faces.numpy()
+    faces, crop = fit_body.faces.numpy(), prepared_crop(scene_folder)
     ious = np.array([mask_iou(mesh_silhouette(fit_body.posed_vertices(f.pose).numpy(), faces, f.camera).astype(float),
-                              in_prepared_frame(gt[f.index].mask, scene_folder)) for f in scene.frames])
+                              in_prepared_frame(gt[f.index].mask, crop)) for f in scene.frames])
     return err, ious, used
 
 

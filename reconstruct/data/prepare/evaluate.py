@@ -46,13 +46,17 @@ def mask_iou(a: np.ndarray, b: np.ndarray, threshold: float = 0.5) -> float:
     return float((a & b).sum() / union) if union else 1.0
 
 
-def in_prepared_frame(image: np.ndarray, scene_folder: Path) -> np.ndarray:
-    """(H,W) float: an (h,w) map of the source video's frame (a true mask, a true silhouette) cropped
-    and resized as ``prepare`` cropped that video into ``scene_folder`` (its prepare_report.json's
-    crop), bilinear."""
+def prepared_crop(scene_folder: Path) -> Crop:
+    """The crop ``prepare`` cut from the source video into ``scene_folder`` (its prepare_report.json)."""
     report = Path(scene_folder) / "prepare_report.json"
     try:
-        crop = Crop(**json.loads(report.read_text())["crop"])
+        return Crop(**json.loads(report.read_text())["crop"])
     except (OSError, KeyError, TypeError, ValueError) as err:
         raise ValueError(f"{report}: expected prepare's report with a 'crop' entry ({err})") from err
+
+
+def in_prepared_frame(image: np.ndarray, crop: Crop) -> np.ndarray:
+    """(H,W) float: an (h,w) map of the source video's frame (a true mask, a true silhouette) cropped
+    and resized as ``prepare`` cropped that video (``crop``: ``prepared_crop`` of its scene folder),
+    bilinear."""
     return apply_crop(np.asarray(image, np.float32)[None], crop, resample="bilinear")[0]
