@@ -78,11 +78,6 @@ def _stage1_config(args):
 def _cmd_train(args) -> int:
     from app.train_cmd import train
 
-    if args.device == "cuda":
-        import torch
-
-        if not torch.cuda.is_available():
-            raise RuntimeError("--device cuda: CUDA is not available on this machine")
     train(args.scene, args.out, _stage1_config(args), progress=not args.quiet, stage=args.stage,
           stage2=_stage2_overrides(args), allow_incomplete=args.allow_incomplete, device=args.device)
     return 0

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from reconstruct.run_folder import RunFolder
+from reconstruct.run_folder import RunFolder, check_device
 
 
 def _run(trainer, desc: str, progress: bool) -> None:
@@ -79,6 +79,7 @@ def train(scene_spec: str, run_dir: Path, config, *, progress: bool = True, stag
     """Train until the run's steps or minutes are used up; returns the trainer. ``stage``: "1",
     "2" (continue the run's Stage I, or resume its Stage II) or "all". ``device``: "cpu" or
     "cuda", or None for the one the run (or ``config``) names (``run_folder.placed_on``)."""
+    check_device(device)  # before the scene is loaded or built
     run = RunFolder(run_dir)
     if stage == "2":
         return train_stage2(run_dir, stage2, allow_incomplete=allow_incomplete, progress=progress, device=device)

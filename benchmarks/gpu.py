@@ -42,12 +42,11 @@ sys.path.insert(0, str(ROOT))  # first: this folder's renderer.py must not shado
 SCENE = "synthetic:seed=0"
 
 
-def _sh(cmd: list[str], log: Path, timeout: float, env: dict | None = None) -> tuple[int, float]:
+def _sh(cmd: list[str], log: Path, timeout: float) -> tuple[int, float]:
     t0 = time.perf_counter()
     with open(log, "w") as f:
         try:
-            rc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, cwd=ROOT, timeout=timeout,
-                                env=env).returncode
+            rc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, cwd=ROOT, timeout=timeout).returncode
         except subprocess.TimeoutExpired:
             rc = 124
     return rc, time.perf_counter() - t0

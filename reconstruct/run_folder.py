@@ -32,14 +32,19 @@ METRICS_NAME = "metrics.jsonl"
 LOCK_NAME = ".lock"
 
 
+def check_device(device: str | None) -> None:
+    """Raises when ``device`` asks for CUDA on a machine without it (before anything is loaded)."""
+    if device == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError("--device cuda: CUDA is not available on this machine")
+
+
 def placed_on(config: Stage1Config, device: str | None, where: str) -> Stage1Config:
     """``config`` to run on ``device`` ("cpu" or "cuda"; None: the device the settings name). The
     device is where this process runs, not part of the run: a run trained on a GPU opens on a
     machine without one, on the CPU (with a note); asking for CUDA where there is none is an error."""
+    check_device(device)
     want = device or config.device
     if want == "cuda" and not torch.cuda.is_available():
-        if device == "cuda":
-            raise RuntimeError("--device cuda: CUDA is not available on this machine")
         print(f"{where}: trained on CUDA; this machine has none, so it runs on the CPU", file=sys.stderr)
         want = "cpu"
     return config if want == config.device else dataclasses.replace(config, device=want)
