@@ -380,6 +380,32 @@ def test_a_cut_out_is_read_over_a_light_wall(tmp_path):
     assert np.abs(frame[5, 3] - half).max() <= 1
 
 
+@pytest.mark.parametrize("kind", ["png16", "tiff16", "tiff_int32", "tiff_float01", "tiff_float255"])
+def test_a_grey_photo_wider_than_8_bits_is_read_at_its_range(tmp_path, kind):
+    """A 16-bit grey PNG or TIFF, and 32-bit integer or float TIFFs (scanners, raw converters,
+    medical and machine-vision cameras): Pillow's RGB conversion clips them at 255, and a 16-bit
+    photo came out white (``prepare`` then found no person). Each is read as the 8-bit grey it
+    holds, within rounding."""
+    from reconstruct.data.prepare.inputs import read_input
+
+    grey = (np.add.outer(np.arange(40), np.arange(30)) * 3).astype(np.uint8)  # 0..207, a ramp
+    if kind in ("png16", "tiff16"):
+        im = Image.fromarray(grey.astype(np.uint16) * 257)  # mode I;16, 65535 = white
+        assert im.mode.startswith("I;16")
+    elif kind == "tiff_int32":
+        im = Image.fromarray(grey.astype(np.int32) * 257)  # mode I, 16-bit values
+    elif kind == "tiff_float01":
+        im = Image.fromarray(grey.astype(np.float32) / 255)  # mode F, a linear 0-1 image
+    else:
+        im = Image.fromarray(grey.astype(np.float32))  # mode F holding 0-255
+    path = tmp_path / ("grey.png" if kind == "png16" else "grey.tif")
+    im.save(path)
+    frame = read_input(path, max_side=None)[0].frames[0].astype(int)
+    assert frame.shape == (40, 30, 3)
+    for c in range(3):
+        assert np.abs(frame[..., c] - grey).max() <= 1, (kind, frame[..., c].max())
+
+
 def test_a_phones_heic_photo_is_read(tmp_path):
     """iPhones store photos as HEIC: read through pillow-heif's opener (which itself applies the file's
     own rotation, its ``irot``, on decode and resets the EXIF tag, so the photo is turned once)."""

@@ -42,6 +42,27 @@ def input_kind(path: str | os.PathLike) -> str:
 CUTOUT_BACKGROUND = (209, 209, 204)
 
 
+# single-channel modes wider than 8 bits (a 16-bit grayscale PNG or TIFF, 32-bit integer or float
+# TIFFs): Pillow's convert("RGB") clips them at 255, so a 16-bit photo came out white
+WIDE_MODES = ("I;16", "I;16L", "I;16B", "I;16N", "I", "F")
+
+
+def _wide_to_rgb(im) -> np.ndarray:
+    """(H,W,3) uint8 grey of a single-channel image in one of ``WIDE_MODES``, scaled by the range its
+    type implies: 16-bit modes by 65535; 32-bit integers by 255 or 65535, whichever their largest
+    value fits; floats by 1 when they lie in [0, 1] (a linear 0-1 image), else as the integers."""
+    a = np.asarray(im).astype(np.float64)
+    top = float(np.nanmax(a)) if a.size else 0.0
+    if im.mode.startswith("I;16"):
+        full = 65535.0
+    elif im.mode == "F" and top <= 1.0:
+        full = 1.0
+    else:
+        full = 255.0 if top <= 255.0 else 65535.0
+    grey = np.clip(np.nan_to_num(a) / full * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return np.repeat(grey[..., None], 3, axis=-1)
+
+
 def _upright_rgb(im) -> np.ndarray:
     """(H,W,3) uint8 of a PIL image as it is meant to be seen: turned by its EXIF orientation (a phone
     stores a portrait photo sideways and says so in the tag) and, when it has transparency (a cut-out
@@ -52,6 +73,8 @@ def _upright_rgb(im) -> np.ndarray:
         im = ImageOps.exif_transpose(im) or im
     except Exception:  # noqa: BLE001 - a broken EXIF block: the pixels as stored, not a refused photo
         pass
+    if im.mode in WIDE_MODES:
+        return _wide_to_rgb(im)
     if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
         rgba = im.convert("RGBA")
         base = Image.new("RGBA", rgba.size, CUTOUT_BACKGROUND + (255,))
