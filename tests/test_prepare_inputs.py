@@ -187,6 +187,84 @@ def test_two_people_side_by_side_with_mediapipe(synth, tmp_path):
         assert report["mean_silhouette_iou"] > 0.7
 
 
+def test_a_small_person_in_a_wide_frame_is_found_with_mediapipe(synth):
+    """A person at a third of the height of a wide frame (a landscape photo taken from a distance):
+    the legacy Pose detector fits the whole frame into its square input and found nobody in any of
+    these frames; the square windows of ``mediapipe_worker.detect_one`` find them, and their box is
+    where they stand."""
+    python = detector_python()
+    if python is None:
+        pytest.skip("no Python with mediapipe==0.10.21")
+    from reconstruct.data.prepare import MediapipeDetector
+
+    det = MediapipeDetector(python)
+    a = (synth.frames[0].image * 255).astype(np.uint8)
+    m = synth.frames[0].mask > 0.5
+    for bg, (H, W) in ((0, (480, 853)), (235, (640, 853))):
+        canvas = np.full((H, W, 3), bg, np.uint8)
+        y0, x0 = H - 192 - 10, W - 192 - 40
+        canvas[y0:y0 + 192, x0:x0 + 192][m] = a[m]
+        people = det.find_people(canvas[None])[0]
+        assert len(people) == 1, (bg, H, W, len(people))
+        x_lo, y_lo, x_hi, y_hi = people[0].box
+        ys, xs = np.nonzero(m)
+        assert abs(x_lo - (x0 + xs.min())) < 25 and abs(x_hi - (x0 + xs.max())) < 25, people[0].box
+        assert abs(y_lo - (y0 + ys.min())) < 30 and abs(y_hi - (y0 + ys.max())) < 30, people[0].box
+
+
+def test_window_search_maps_a_detection_back_onto_the_frame():
+    """``detect_one`` on a stand-in detector that sees a person (a bright block) only in square
+    images: nobody in the wide frame, found in a window, and its landmarks and segmentation put back
+    where the block is in the frame; the largest window size that finds the person wins; without
+    windows (a second search after blanking someone out) nothing; a person the whole frame shows is
+    taken as found there."""
+    from types import SimpleNamespace
+
+    from reconstruct.data.prepare.mediapipe_worker import WINDOWS, detect_one, window_origins
+
+    class SquareOnly:
+        def __init__(self):
+            self.calls = []
+
+        def process(self, img):
+            self.calls.append(img.shape[:2])
+            h, w = img.shape[:2]
+            ys, xs = np.nonzero(img[..., 0] > 200)
+            if h != w or ys.size == 0:
+                return SimpleNamespace(pose_landmarks=None, segmentation_mask=None)
+            # two landmarks at the block's corners (normalised to the window), the rest at its centre
+            pts = [(xs.min() / w, ys.min() / h), (xs.max() / w, ys.max() / h)]
+            pts += [(xs.mean() / w, ys.mean() / h)] * 31
+            lms = [SimpleNamespace(x=float(x), y=float(y), z=0.1, visibility=0.9) for x, y in pts]
+            seg = (img[..., 0] > 200).astype(np.float32)
+            return SimpleNamespace(pose_landmarks=SimpleNamespace(landmark=lms), segmentation_mask=seg)
+
+    frame = np.zeros((300, 700, 3), np.uint8)
+    frame[120:260, 520:560] = 255  # the person, near the right edge
+    pose = SquareOnly()
+    assert detect_one(pose, frame, windows=False) is None
+    pose.calls.clear()
+    lm, seg = detect_one(pose, frame, windows=True)
+    W, H = 700, 300
+    assert np.allclose(lm[0, :2] * [W, H], [520, 120], atol=0.5) and np.allclose(lm[1, :2] * [W, H], [559, 259], atol=0.5)
+    assert seg.shape == (H, W) and (seg > 0.5).sum() == 140 * 40 and seg[120:260, 520:560].min() == 1.0
+    side = round(WINDOWS[0] * H)
+    assert pose.calls[0] == (H, W) and all(shape == (side, side) for shape in pose.calls[1:]), \
+        "the whole frame first, then the full-height windows, which find it"
+    assert lm[0, 2] == pytest.approx(0.1 * side / W)
+    # the windows cover the frame, start at 0, end at the edge, overlap by at least half a window
+    for length, s in ((700, 300), (300, 180), (853, 480), (480, 480), (100, 300)):
+        o = window_origins(length, s)
+        assert o[0] == 0 and (o[-1] + s == length or (len(o) == 1 and s >= length))
+        assert all(b - a <= s / 2 for a, b in zip(o, o[1:]))
+    # seen in the whole frame: no windows
+    square = np.zeros((300, 300, 3), np.uint8)
+    square[50:100, 60:80] = 255
+    pose.calls.clear()
+    lm, _ = detect_one(pose, square, windows=True)
+    assert pose.calls == [(300, 300)] and np.allclose(lm[0, :2] * 300, [60, 50], atol=0.5)
+
+
 # ----- crop and camera ------------------------------------------------------------------------------
 def test_crop_camera_reprojects_onto_the_same_pixels():
     from reconstruct.camera import Camera

@@ -11,7 +11,8 @@ IN.npz holds ``images`` (T,H,W,3) uint8 RGB. OUT.npz gets ``found`` (T,) bool, `
 seeded by the segmentation and the landmarks; ``refine_used`` (T,) says where the refinement was kept.
 
 ``--mode people`` finds everyone in each image instead (the legacy Pose solution tracks one person):
-detect, blank out the person found, detect again, up to ``--max-people``. OUT.npz gets ``count`` (T,),
+detect, blank out the person found, detect again, up to ``--max-people``; an image where the whole
+frame shows nobody is searched again in square windows (``detect_one``). OUT.npz gets ``count`` (T,),
 ``people`` (T,P,33,4) normalised landmarks, ``regions`` (T,P,H,W) uint8 each person's segmentation.
 
 This file imports only numpy and mediapipe (``mediapipe==0.10.21``, the last release whose wheel ships
@@ -114,8 +115,71 @@ def _box(lm, W: int, H: int) -> tuple[int, int, int, int]:
             int(min(H, y1 + 0.08 * h)))
 
 
+# square windows tried, as a share of the image's shorter side, when the whole image shows nobody: the
+# legacy Pose detector fits the whole image into its square input, so in a wide frame a person at a
+# third of its height (a landscape photo taken from a distance) was too small to be found
+WINDOWS = (1.0, 0.6)
+
+
+def window_origins(length: int, side: int) -> list[int]:
+    """Where windows ``side`` pixels long start along an axis ``length`` pixels long: evenly spaced,
+    at most half a window apart, the first at 0 and the last at the end."""
+    import math
+
+    if side >= length:
+        return [0]
+    n = math.ceil((length - side) / (side / 2)) + 1
+    return sorted({round(k * (length - side) / (n - 1)) for k in range(n)})
+
+
+def detect_one(pose, image, windows: bool):
+    """(landmarks (33,4) normalised to ``image``, segmentation (H,W) float) of one person, or None:
+    the whole image first; then, with ``windows``, square windows of each size in ``WINDOWS`` (the
+    largest size that finds someone wins, and among its windows the detection with the highest mean
+    landmark visibility), mapped back onto the image."""
+    import numpy as np
+
+    H, W = image.shape[:2]
+
+    def run(img):
+        result = pose.process(np.ascontiguousarray(img))
+        if result.pose_landmarks is None:
+            return None
+        lm = np.array([[q.x, q.y, q.z, q.visibility] for q in result.pose_landmarks.landmark], np.float32)
+        seg = result.segmentation_mask
+        return lm, (np.zeros(img.shape[:2], np.float32) if seg is None else np.asarray(seg, np.float32))
+
+    whole = run(image)
+    if whole is not None or not windows:
+        return whole
+    for share in WINDOWS:
+        side = max(16, int(round(share * min(H, W))))
+        if share < 1.0 and side >= min(H, W):
+            continue
+        best = None
+        for y in window_origins(H, side):
+            for x in window_origins(W, side):
+                got = run(image[y:y + side, x:x + side])
+                if got is None:
+                    continue
+                lm, seg = got
+                if best is not None and lm[:, 3].mean() <= best[0][:, 3].mean():
+                    continue
+                lm = lm.copy()
+                lm[:, 0] = (lm[:, 0] * side + x) / W
+                lm[:, 1] = (lm[:, 1] * side + y) / H
+                lm[:, 2] = lm[:, 2] * side / W  # z is on the x scale
+                full = np.zeros((H, W), np.float32)
+                full[y:y + side, x:x + side] = seg
+                best = (lm, full)
+        if best is not None:
+            return best
+    return None
+
+
 def find_people(images, args, mp, mp_pose) -> int:
-    """Everyone in each image: detect one person, blank them out, detect again."""
+    """Everyone in each image: detect one person, blank them out, detect again. Where the whole image
+    shows nobody at all, the first search also tries square windows (``detect_one``)."""
     import numpy as np
 
     T, H, W = images.shape[:3]
@@ -130,10 +194,10 @@ def find_people(images, args, mp, mp_pose) -> int:
             fill = np.median(images[i].reshape(-1, 3), axis=0).astype(np.uint8)
             boxes = []
             for p in range(P):
-                result = pose.process(np.ascontiguousarray(work))
-                if result.pose_landmarks is None:
+                got = detect_one(pose, work, windows=p == 0)
+                if got is None:
                     break
-                lm = np.array([[q.x, q.y, q.z, q.visibility] for q in result.pose_landmarks.landmark], np.float32)
+                lm, segmentation = got
                 x0, y0, x1, y1 = _box(lm, W, H)
                 if x1 - x0 < 4 or y1 - y0 < 4:
                     break
@@ -145,9 +209,7 @@ def find_people(images, args, mp, mp_pose) -> int:
                 if dup:
                     break
                 boxes.append((x0, y0, x1, y1))
-                seg = np.zeros((H, W), bool)
-                if result.segmentation_mask is not None:
-                    seg = result.segmentation_mask > 0.5
+                seg = segmentation > 0.5
                 inside = np.zeros((H, W), bool)
                 inside[y0:y1, x0:x1] = True
                 region = seg & inside
