@@ -206,6 +206,36 @@ def test_broken_files_are_refused_naming_file_and_line(tmp_path, case, text, pat
         load_motion(_write(tmp_path, text))
 
 
+@pytest.mark.parametrize("case,data,note", [
+    ("a byte-order mark (Windows tools)", ("\ufeff" + GOOD).encode("utf-8"), None),
+    ("Windows line ends", GOOD.replace("\n", "\r\n").encode("utf-8"), None),
+    ("values against the colon", GOOD.replace("Frames: 2", "Frames:2").replace("Time: 0.033333", "Time:0.033333").encode(),
+     None),
+    ("a joint name in a code page", GOOD.replace("Spine", "Colonne_\u00e9").encode("latin-1"), "not UTF-8: read as Latin-1"),
+])
+def test_files_as_other_tools_write_them_read_like_the_plain_one(tmp_path, case, data, note):
+    """The same two frames as ``GOOD`` written the ways exporters and editors write BVH: each reads
+    to the same rotations and root path (a byte-order mark was 'expected HIERARCHY', a code page
+    'not a text file', 'Frames:2' 'expected Frames:'); a file that is not UTF-8 says so in a note."""
+    plain = load_motion(_write(tmp_path, GOOD, "good.bvh"))
+    p = tmp_path / "other.bvh"
+    p.write_bytes(data)
+    clip = load_motion(p)
+    assert clip.num_frames == 2 and clip.fps == pytest.approx(plain.fps)
+    assert np.allclose(clip.local_rotations, plain.local_rotations)
+    assert np.allclose(clip.root_positions, plain.root_positions)
+    assert (note is None) == (not any("not UTF-8" in n for n in clip.notes))
+    if note:
+        assert any(note in n for n in clip.notes) and clip.skeleton.names[1] == "Colonne_\u00e9"
+
+
+def test_a_binary_file_named_bvh_is_refused(tmp_path):
+    p = tmp_path / "model.bvh"
+    p.write_bytes(b"Kaydara FBX Binary  \x00\x1a\x00" + bytes(range(256)))
+    with pytest.raises(MotionFileError, match=r"model\.bvh: not a text file \(BVH files are text; found binary data"):
+        load_motion(p)
+
+
 def test_unknown_suffix_and_pickles_refused(tmp_path):
     with pytest.raises(MotionFileError, match="unsupported motion file type '.fbx'"):
         load_motion(_write(tmp_path, "x", "a.fbx"))

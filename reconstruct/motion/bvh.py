@@ -130,11 +130,14 @@ def _parse_joint(tk: _Tokens, name: str, parent: int, line: int, joints: list[_J
 
 
 def _header_value(tk: _Tokens, words: list[str]) -> tuple[int, str]:
-    """Reads e.g. 'Frames:' N or 'Frame Time:' dt, tolerating 'Frames :' spacing."""
+    """Reads e.g. 'Frames:' N or 'Frame Time:' dt, tolerating 'Frames :' spacing and a value written
+    against the colon ('Frames:120', 'Frame Time:0.0333')."""
     first_line = None
-    for w in words:
+    for n, w in enumerate(words):
         ln, tok = tk.next(f"'{' '.join(words)}'")
         first_line = first_line or ln
+        if n == len(words) - 1 and w.endswith(":") and tok.lower().startswith(w.lower()) and len(tok) > len(w):
+            return ln, tok[len(w):]
         if tok.rstrip(":").lower() != w.rstrip(":").lower():
             raise tk.error(ln, f"expected '{' '.join(words)}', found {tok!r}")
         if not tok.endswith(":") and w.endswith(":"):
@@ -150,11 +153,10 @@ def read_bvh(path: str | os.PathLike, *, up: str | None = None, forward: str | N
     axes detected from the rest skeleton; ``metres_per_unit`` overrides the unit guess."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8", errors="strict")
-    except UnicodeDecodeError as exc:
-        raise MotionFileError(f"{path}: not a text file (BVH files are text): {exc}") from None
+        data = path.read_bytes()
     except OSError as exc:
         raise MotionFileError(f"{path}: cannot be read: {exc}") from None
+    text, decoded = _bvh_text(path, data)
     lines = text.splitlines()
     motion_at = next((i for i, ln in enumerate(lines) if ln.strip().upper() == "MOTION"), None)
     head = lines if motion_at is None else lines[:motion_at]
@@ -264,9 +266,25 @@ def read_bvh(path: str | os.PathLike, *, up: str | None = None, forward: str | N
         raise MotionFileError(f"{path}: up {up_v} and forward {fwd_v} axes must be perpendicular")
     C = frame_to_body(up_v, fwd_v)
     unit = metres_per_unit or guess_metres_per_unit(rest, find_roles(names, "bvh"), up_v)
+    if decoded != "utf-8":
+        notes.append(f"the file is not UTF-8: read as {decoded} (joint names with other characters may "
+                     "show wrongly)")
     notes.append(f"axes {how}: up {_axis_name(up_v)}, facing {_axis_name(fwd_v)}; units guessed as "
                  f"{_unit_name(unit)}" if metres_per_unit is None else f"units given: {unit} m per unit")
     return MotionClip(skeleton, local, root, 1.0 / frame_time, C, C, float(unit), str(path), "bvh", tuple(notes))
+
+
+def _bvh_text(path: Path, data: bytes) -> tuple[str, str]:
+    """(text, encoding) of a BVH file's bytes: UTF-8, its byte-order mark dropped (Windows tools
+    write one); else Latin-1 (older exporters write joint names in a code page; the format's own
+    words are ASCII, so the file still reads). Bytes with NULs are not a text file."""
+    if b"\x00" in data[:4096]:
+        raise MotionFileError(f"{path}: not a text file (BVH files are text; found binary data, "
+                              f"starting {data[:16]!r})")
+    try:
+        return data.decode("utf-8-sig"), "utf-8"
+    except UnicodeDecodeError:
+        return data.decode("latin-1"), "Latin-1"
 
 
 def _is_float(t: str) -> bool:
