@@ -56,6 +56,22 @@ def save(path, layout: str, full: np.ndarray, trans: np.ndarray, fps_key: str | 
         arrays["poses"] = np.concatenate([full[:, :66], np.random.default_rng(2).normal(0, 0.3, (T, 99))], 1)
     elif layout == "split":
         arrays["root_orient"], arrays["pose_body"] = full[:, :3], full[:, 3:66]
+    elif layout in ("smplx-lib", "smplx-lib rotmat", "smpl-lib 23 joints"):
+        # the smplx library's keyword names (EasyMocap, SMPLer-X and the like), with 'transl'
+        del arrays["trans"]
+        arrays["transl"] = trans[:, None] if layout == "smplx-lib" else trans
+        if layout == "smplx-lib":
+            arrays["global_orient"], arrays["body_pose"] = full[:, :3], full[:, 3:66]
+        elif layout == "smplx-lib rotmat":
+            arrays["global_orient"] = rotvec_to_matrix(full[:, None, :3])
+            arrays["body_pose"] = rotvec_to_matrix(full[:, 3:66].reshape(T, 21, 3))
+        else:
+            hands = np.random.default_rng(3).normal(0, 0.3, (T, 6))
+            arrays["global_orient"] = full[:, :3]
+            arrays["body_pose"] = np.concatenate([full[:, 3:66], hands], 1).reshape(T, 23, 3)
+    elif layout == "aist++":
+        del arrays["trans"]
+        arrays["smpl_poses"], arrays["smpl_trans"], arrays["smpl_scaling"] = full, trans * 93.5, np.array([93.5])
     if fps_key:
         arrays[fps_key] = np.array(fps)
     np.savez(path, **arrays)
@@ -68,7 +84,8 @@ def smpl_body(tmp_path_factory):
     return smpl_body_spec(BETAS, "neutral", folder).build()
 
 
-@pytest.mark.parametrize("layout", ["smpl", "smplh", "smplx", "split"])
+@pytest.mark.parametrize("layout", ["smpl", "smplh", "smplx", "split", "smplx-lib", "smplx-lib rotmat",
+                                    "smpl-lib 23 joints", "aist++"])
 def test_layouts_read_the_22_body_joints(tmp_path, layout):
     full, trans = amass_motion(5)
     clip = load_motion(save(tmp_path / f"{layout}.npz", layout, full, trans))
@@ -78,6 +95,23 @@ def test_layouts_read_the_22_body_joints(tmp_path, layout):
     # the world is Z up: up maps to up
     np.testing.assert_allclose(clip.world_to_body[2], [0.0, 0.0, 1.0], atol=1e-12)
     np.testing.assert_allclose(clip.rest_to_body, C)
+
+
+@pytest.mark.parametrize("what,arrays,pattern", [
+    ("matrices that are not rotations", {"global_orient": np.tile(2 * np.eye(3), (4, 1, 1, 1)),
+                                         "body_pose": np.tile(np.eye(3), (4, 21, 1, 1))},
+     r"'global_orient' holds 3x3 matrices that are not rotations"),
+    ("a body_pose of 20 joints", {"global_orient": np.zeros((4, 3)), "body_pose": np.zeros((4, 60))},
+     r"'body_pose' has shape \(4, 60\), expected \(T, 63\), \(T, 21, 3\), \(T, 21, 3, 3\) or \(T, 69\)"),
+    ("frames that disagree", {"global_orient": np.zeros((4, 3)), "body_pose": np.zeros((5, 63))},
+     r"'global_orient' has 4 frames, 'body_pose' 5"),
+    ("a bad smpl_scaling", {"smpl_poses": np.zeros((4, 72)), "smpl_trans": np.zeros((4, 3)), "smpl_scaling": np.array([0.0])},
+     r"'smpl_scaling' must be one positive number"),
+])
+def test_library_layouts_refuse_what_they_cannot_read(tmp_path, what, arrays, pattern):
+    np.savez(tmp_path / "m.npz", **arrays)
+    with pytest.raises(MotionFileError, match=pattern):
+        load_motion(tmp_path / "m.npz")
 
 
 @pytest.mark.parametrize("key", ["mocap_framerate", "mocap_frame_rate", "fps", None])

@@ -1,8 +1,10 @@
 """SMPL / SMPL-H / SMPL-X pose sequences in ``.npz`` files (AMASS and similar), read as data.
 
 Keys: ``poses`` (T, 3K) axis-angles with the root first (72 for SMPL, 156 for SMPL-H, 165 for
-SMPL-X), or ``root_orient`` (T,3) with ``pose_body`` (T,63); ``trans`` (T,3) in metres (zero when
-missing); the frame rate in ``mocap_framerate``, ``mocap_frame_rate``, ``fps`` or ``frame_rate``.
+SMPL-X; ``smpl_poses`` as AIST++ names it), or ``root_orient`` (T,3) with ``pose_body`` (T,63), or
+``global_orient`` with ``body_pose`` as the smplx library names them (axis-angles or rotation
+matrices, SMPL-X's 21 body joints or SMPL's 23); ``trans`` (T,3) in metres (``transl``, or AIST++'s
+``smpl_trans`` divided by its ``smpl_scaling``; zero when missing); the frame rate in ``mocap_framerate``, ``mocap_frame_rate``, ``fps`` or ``frame_rate``.
 The first 22 joints (the body) are used; hands, jaw and eyes are ignored, as are ``betas``,
 ``gender`` and anything else. Files are opened with ``allow_pickle=False``: pickled objects are
 refused.
@@ -90,18 +92,39 @@ def _array(path: Path, arrays: dict, key: str, shape_tail: tuple[int, ...] | Non
     return a
 
 
+def _rotations(path: Path, arrays: dict, key: str, joints: tuple[int, ...]) -> np.ndarray:
+    """(T, J, 3, 3) rotation matrices of ``arrays[key]``, whose J is one of ``joints``: axis-angles
+    (T, 3J) or (T, J, 3), or rotation matrices (T, J, 3, 3) (and for one joint (T, 3) or (T, 3, 3)),
+    as the smplx library's ``global_orient`` / ``body_pose`` and the tools built on it store them."""
+    a = _array(path, arrays, key)
+    T = a.shape[0] if a.ndim else 0
+    for J in joints:
+        if a.shape in ((T, 3 * J), (T, J, 3)):
+            return rotvec_to_matrix(a.reshape(T, J, 3))
+        if a.shape == (T, J, 3, 3) or (J == 1 and a.shape == (T, 3, 3)):
+            R = a.reshape(T, J, 3, 3)
+            err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(initial=0.0)
+            if err > 1e-3 or (np.linalg.det(R) < 0).any():
+                raise MotionFileError(f"{path}: {key!r} holds 3x3 matrices that are not rotations "
+                                      f"(R Rt differs from I by {err:.3g})")
+            return R
+    shapes = " or ".join(f"(T, {3 * J}), (T, {J}, 3), (T, {J}, 3, 3)" for J in joints)
+    raise MotionFileError(f"{path}: {key!r} has shape {a.shape}, expected {shapes}")
+
+
 def read_smpl_npz(path: str | os.PathLike, *, default_fps: float = 30.0) -> MotionClip:
     """Reads an SMPL-family ``.npz`` sequence into a ``MotionClip`` (22 body joints)."""
     path = Path(path)
     arrays = _load_arrays(path)
     notes = []
-    if "poses" in arrays:
-        poses = _array(path, arrays, "poses")
+    poses_key = next((k for k in ("poses", "smpl_poses") if k in arrays), None)
+    if poses_key is not None:
+        poses = _array(path, arrays, poses_key)
         if poses.ndim != 2 or poses.shape[1] % 3 or poses.shape[1] < 3 * NUM_BODY_JOINTS:
-            raise MotionFileError(f"{path}: 'poses' has shape {poses.shape}, expected (T, 3K) with K >= "
+            raise MotionFileError(f"{path}: {poses_key!r} has shape {poses.shape}, expected (T, 3K) with K >= "
                                   f"{NUM_BODY_JOINTS} joints (72 SMPL, 156 SMPL-H, 165 SMPL-X)")
         fmt = FORMATS.get(poses.shape[1], "smpl-family")
-        body = poses[:, : 3 * NUM_BODY_JOINTS]
+        local = rotvec_to_matrix(poses[:, : 3 * NUM_BODY_JOINTS].reshape(-1, NUM_BODY_JOINTS, 3))
         if poses.shape[1] > 3 * NUM_BODY_JOINTS:
             notes.append(f"{poses.shape[1] // 3 - NUM_BODY_JOINTS} hand/face joints ignored")
     elif "root_orient" in arrays and "pose_body" in arrays:
@@ -109,17 +132,37 @@ def read_smpl_npz(path: str | os.PathLike, *, default_fps: float = 30.0) -> Moti
         pb = _array(path, arrays, "pose_body", (3 * (NUM_BODY_JOINTS - 1),))
         if root.shape[0] != pb.shape[0]:
             raise MotionFileError(f"{path}: 'root_orient' has {root.shape[0]} frames, 'pose_body' {pb.shape[0]}")
-        body, fmt = np.concatenate([root, pb], 1), "smplh"
+        local, fmt = rotvec_to_matrix(np.concatenate([root, pb], 1).reshape(-1, NUM_BODY_JOINTS, 3)), "smplh"
+    elif "global_orient" in arrays and "body_pose" in arrays:
+        root = _rotations(path, arrays, "global_orient", (1,))
+        rest = _rotations(path, arrays, "body_pose", (NUM_BODY_JOINTS - 1, 23))
+        if root.shape[0] != rest.shape[0]:
+            raise MotionFileError(f"{path}: 'global_orient' has {root.shape[0]} frames, 'body_pose' {rest.shape[0]}")
+        if rest.shape[1] > NUM_BODY_JOINTS - 1:
+            notes.append(f"{rest.shape[1] - (NUM_BODY_JOINTS - 1)} hand joints of 'body_pose' ignored (SMPL's)")
+        local, fmt = np.concatenate([root, rest[:, : NUM_BODY_JOINTS - 1]], 1), "smpl-family"
     else:
-        raise MotionFileError(f"{path}: no SMPL pose arrays: expected 'poses' (T, 72|156|165) or 'root_orient' "
-                              f"with 'pose_body'; found keys {sorted(arrays)}")
-    T = body.shape[0]
+        raise MotionFileError(f"{path}: no SMPL pose arrays: expected 'poses' or 'smpl_poses' (T, 72|156|165), "
+                              f"'root_orient' with 'pose_body', or 'global_orient' with 'body_pose'; found keys "
+                              f"{sorted(arrays)}")
+    T = local.shape[0]
     if T == 0:
         raise MotionFileError(f"{path}: empty motion (0 frames)")
-    if "trans" in arrays:
-        trans = _array(path, arrays, "trans", (3,))
+    trans_key = next((k for k in ("trans", "transl", "smpl_trans") if k in arrays), None)
+    if trans_key is not None:
+        trans = _array(path, arrays, trans_key)
+        trans = trans.reshape(trans.shape[0], -1) if trans.ndim == 3 and trans.shape[1] == 1 else trans
+        if trans.ndim != 2 or trans.shape[1:] != (3,):
+            raise MotionFileError(f"{path}: {trans_key!r} has shape {trans.shape}, expected (T, 3)")
         if trans.shape[0] != T:
-            raise MotionFileError(f"{path}: 'trans' has {trans.shape[0]} frames, the poses {T}")
+            raise MotionFileError(f"{path}: {trans_key!r} has {trans.shape[0]} frames, the poses {T}")
+        if trans_key == "smpl_trans" and "smpl_scaling" in arrays:
+            # AIST++: the translation is in the units of a body scaled by smpl_scaling
+            scale = np.asarray(arrays["smpl_scaling"], np.float64).reshape(-1)
+            if scale.size != 1 or not np.isfinite(scale[0]) or scale[0] <= 0:
+                raise MotionFileError(f"{path}: 'smpl_scaling' must be one positive number, found {arrays['smpl_scaling']!r}")
+            trans = trans / scale[0]
+            notes.append(f"'smpl_trans' divided by 'smpl_scaling' ({scale[0]:g})")
     else:
         trans = np.zeros((T, 3))
         notes.append("no 'trans': the root stays in place")
@@ -135,7 +178,6 @@ def read_smpl_npz(path: str | os.PathLike, *, default_fps: float = 30.0) -> Moti
         fps = float(default_fps)
         notes.append(f"no frame rate in the file ({', '.join(FPS_KEYS)}): assumed {fps:g} fps")
     skeleton = nominal_skeleton()
-    local = rotvec_to_matrix(body.reshape(T, NUM_BODY_JOINTS, 3))
     root_positions = trans + skeleton.offsets[0]
     clip = MotionClip(skeleton, local, root_positions, fps, SMPL_TO_BODY.copy(), np.eye(3), 1.0, str(path), fmt,
                       tuple(notes))
