@@ -5,6 +5,7 @@ an independent forward kinematics of the file (glm, as written by bvhio), rest-p
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -103,6 +104,61 @@ def test_random_joint_angles_give_the_files_bone_directions(body, tmp_path):
         d = joints[toes].mean(0) - joints[L.index("foot.L")]
         worst = max(worst, angle_deg(d, bvh_dir(rots, f, "LeftFoot", "LeftToeBase", roots[f])))
     assert worst < TOL_DEG, worst
+
+
+# the test skeleton's joints as other rigs name them (the spine is matched by position, not name)
+RIG_NAMES = {
+    "3ds Max Biped": {"Hips": "Bip01 Pelvis", "LeftUpLeg": "Bip01 L Thigh", "LeftLeg": "Bip01 L Calf",
+                      "LeftFoot": "Bip01 L Foot", "LeftToeBase": "Bip01 L Toe0", "Spine": "Bip01 Spine",
+                      "Spine1": "Bip01 Spine1", "Neck": "Bip01 Neck", "Head": "Bip01 Head",
+                      "LeftShoulder": "Bip01 L Clavicle", "LeftArm": "Bip01 L UpperArm",
+                      "LeftForeArm": "Bip01 L Forearm", "LeftHand": "Bip01 L Hand"},
+    "Unreal": {"Hips": "pelvis", "LeftUpLeg": "thigh_l", "LeftLeg": "calf_l", "LeftFoot": "foot_l",
+               "LeftToeBase": "ball_l", "Spine": "spine_01", "Spine1": "spine_02", "Neck": "neck_01", "Head": "head",
+               "LeftShoulder": "clavicle_l", "LeftArm": "upperarm_l", "LeftForeArm": "lowerarm_l", "LeftHand": "hand_l"},
+    "Blender Rigify": {"Hips": "DEF-hips", "LeftUpLeg": "DEF-thigh.L", "LeftLeg": "DEF-shin.L",
+                       "LeftFoot": "DEF-foot.L", "LeftToeBase": "DEF-toe.L", "Spine": "DEF-spine",
+                       "Spine1": "DEF-chest", "Neck": "DEF-neck", "Head": "DEF-head",
+                       "LeftShoulder": "DEF-shoulder.L", "LeftArm": "DEF-upper_arm.L",
+                       "LeftForeArm": "DEF-forearm.L", "LeftHand": "DEF-hand.L"},
+    "HumanIK": {n: f"Character1_{n}" for n, _, _ in SKELETON},
+}
+
+
+def _rig_name(rig: str, name: str) -> str:
+    names = RIG_NAMES[rig]
+    if name in names or not name.startswith("Right"):
+        return names.get(name, name)
+    left = names["Left" + name[len("Right"):]]  # the right side as the rig writes its left
+    for a, b in ((" L ", " R "), ("_l", "_r"), (".L", ".R"), ("Left", "Right")):
+        if a in left:
+            return left.replace(a, b)
+    raise AssertionError(left)
+
+
+@pytest.mark.parametrize("rig", sorted(RIG_NAMES))
+def test_rigs_that_name_their_joints_otherwise_drive_the_same_bones(body, tmp_path, rig):
+    """The same motion with the joints named as 3ds Max Biped, Unreal, Blender's Rigify and HumanIK
+    name them (a prefix every joint shares, the side last): every bone is found and the poses equal
+    the plain file's (before, Biped's, Rigify's and HumanIK's files matched no joint at all, and
+    Unreal's matched neither the legs nor the neck)."""
+    rng = np.random.default_rng(3)
+    T = 3
+    rots = {name: [quat(rng.normal(size=3), rng.uniform(-40, 40)) for _ in range(T)] for name, _, _ in SKELETON}
+    roots = [(rng.normal() * 20, 95 + rng.normal() * 3, rng.normal() * 20) for _ in range(T)]
+    plain_path = write_bvh(tmp_path / "plain.bvh", rots, roots)
+    text = plain_path.read_text()
+    for name, _, _ in sorted(SKELETON, key=lambda j: -len(j[0])):  # LeftForeArm before LeftArm
+        text = re.sub(rf"\b(ROOT|JOINT) {name}\b", rf"\1 {_rig_name(rig, name)}", text)
+    renamed = tmp_path / "renamed.bvh"
+    renamed.write_text(text)
+    plain, other = retarget(load_motion(plain_path), body), retarget(load_motion(renamed), body)
+    assert not [n for n in plain.notes + other.notes if "has no joint for" in n], other.notes
+    assert len(other.dropped) == len(plain.dropped)
+    for a, b in zip(plain.poses, other.poses):
+        np.testing.assert_allclose(b.joint_rotations, a.joint_rotations, atol=1e-9)
+        np.testing.assert_allclose(b.global_orient, a.global_orient, atol=1e-9)
+        np.testing.assert_allclose(b.transl, a.transl, atol=1e-9)
 
 
 def test_root_translation_scaled_by_leg_length(body, tmp_path):

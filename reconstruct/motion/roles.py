@@ -4,7 +4,9 @@ The table extends the role idea of ``reconstruct/body/novel_poses.py`` to motion
 lists candidate names per naming scheme: the avatar bodies (Anny, the SMPL backend's labels), SMPL
 joint names (SMPL / SMPL-H / SMPL-X sequences) and common BVH skeletons (CMU, Mixamo, MotionBuilder
 and similar). BVH names are compared after normalising: the namespace before ``:`` is dropped
-(``mixamorig:LeftArm``), and case, spaces, ``_``, ``-`` and ``.`` are ignored.
+(``mixamorig:LeftArm``), and case, spaces, ``_``, ``-`` and ``.`` are ignored; a prefix that every
+joint shares is dropped (``without_rig_prefix``: ``Bip01 L Thigh``, ``Character1_Hips``), and a side
+may come first or last (``LeftArm``, ``upperarm_l``, ``thigh.L``).
 
 The spine between the hips and the neck is matched by position, not by name: skeletons have 1 to 5
 spine joints, so each source spine joint goes to the avatar spine bone at the nearest fraction of
@@ -13,6 +15,7 @@ the hips-to-neck length (each used once).
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 
@@ -21,7 +24,16 @@ import numpy as np
 SIDES = {"l": ("Left", "L", "l"), "r": ("Right", "R", "r")}
 
 
+def _side_last(template: str) -> str | None:
+    """The template with its leading side token moved to the end ("{Side}Arm" -> "Arm{Side}",
+    "{S}_Thigh" -> "Thigh_{S}"), or None when it does not start with one."""
+    m = re.match(r"(\{Side\}|\{S\}|\{s\})(_?)(.+)$", template)
+    return None if m is None else f"{m.group(3)}{m.group(2)}{m.group(1)}"
+
+
 def _sided(role: str, anny: str, smpl_body: str, smpl: str, bvh: tuple[str, ...]) -> dict:
+    # every name with its side first also with its side last (Unreal's thigh_l, Blender's thigh.L)
+    bvh = bvh + tuple(t for t in map(_side_last, bvh) if t is not None and t not in bvh)
     out = {}
     for s, (word, letter, low) in SIDES.items():
         names = tuple(n.format(Side=word, S=letter, s=low) for n in bvh)
@@ -39,7 +51,7 @@ ROLE_TABLE: dict[str, dict[str, tuple[str, ...]]] = {
     "hips": {"anny": ("root",), "smpl_body": ("pelvis",), "smpl": ("pelvis",),
              "bvh": ("Hips", "Hip", "Pelvis", "Root", "hip")},
     "neck": {"anny": ("neck01",), "smpl_body": ("neck",), "smpl": ("neck",),
-             "bvh": ("Neck", "Neck0", "Neck1", "LowerNeck")},
+             "bvh": ("Neck", "Neck0", "Neck1", "Neck01", "LowerNeck")},
     "head": {"anny": ("head",), "smpl_body": ("head",), "smpl": ("head",), "bvh": ("Head",)},
     **_sided("clavicle", "clavicle.{S}", "clavicle.{S}", "{side}_collar",
              ("{Side}Shoulder", "{Side}Collar", "{Side}Clavicle", "{s}clavicle", "{S}Collar", "{S}_Clavicle", "Shoulder_{S}", "Clavicle_{S}")),
@@ -53,11 +65,12 @@ ROLE_TABLE: dict[str, dict[str, tuple[str, ...]]] = {
              ("{Side}UpLeg", "{Side}UpperLeg", "{Side}Thigh", "{Side}Hip", "{s}femur", "{S}Thigh", "{S}_Thigh", "{S}Hip", "UpperLeg_{S}")),
     **_sided("lowerleg", "lowerleg01.{S}", "lowerleg.{S}", "{side}_knee",
              ("{Side}Leg", "{Side}LowLeg", "{Side}LowerLeg", "{Side}Knee", "{Side}Shin", "{s}tibia", "{S}Knee",
-              "{S}_Calf", "{S}Calf", "LowerLeg_{S}")),
+              "{S}_Calf", "{S}Calf", "{S}Shin", "LowerLeg_{S}")),
     **_sided("foot", "foot.{S}", "foot.{S}", "{side}_ankle",
              ("{Side}Foot", "{Side}Ankle", "{s}foot", "{S}Foot", "{S}_Foot", "{S}Ankle", "Foot_{S}")),
     **_sided("toe", "", "toe.{S}", "{side}_foot",
-             ("{Side}ToeBase", "{Side}Toe", "{Side}Toes", "{s}toes", "{S}Toe", "{S}_Toe0", "{S}Toes", "Toes_{S}")),
+             ("{Side}ToeBase", "{Side}Toe", "{Side}Toes", "{s}toes", "{S}Toe", "{S}_Toe0", "{S}Toes", "Toes_{S}",
+              "{S}Ball")),
 }
 
 # The bone each role points at (its "tip"): a bone's rest direction is head -> the tip role's head.
@@ -76,13 +89,28 @@ def normalise(name: str) -> str:
     return re.sub(r"[\s_\-.]", "", name).lower()
 
 
+def without_rig_prefix(names: list[str]) -> list[str]:
+    """Normalised joint names with a prefix that every joint but the first shares dropped (3ds Max
+    Biped's "Bip01 L Thigh", HumanIK's "Character1_LeftUpLeg", Rigify's "DEF-thigh.L"): the first
+    joint (the root) may be the prefix alone ("Bip01") and keeps its name then. Unchanged with
+    fewer than 4 joints or when dropping the prefix would leave a name empty."""
+    rest = names[1:]
+    if len(names) < 4:
+        return list(names)
+    prefix = os.path.commonprefix(rest)
+    if not prefix or any(len(n) == len(prefix) for n in rest):
+        return list(names)
+    first = names[0][len(prefix):] if names[0].startswith(prefix) and len(names[0]) > len(prefix) else names[0]
+    return [first] + [n[len(prefix):] for n in rest]
+
+
 def find_roles(names: list[str] | tuple[str, ...], naming: str) -> dict[str, int]:
     """role -> joint index for the joints of a skeleton named in ``naming`` ("anny", "smpl_body",
     "smpl" or "bvh"). BVH names are compared normalised."""
     if naming == "bvh":
         index = {}
-        for i, n in enumerate(names):
-            index.setdefault(normalise(n), i)
+        for i, n in enumerate(without_rig_prefix([normalise(n) for n in names])):
+            index.setdefault(n, i)
         key = normalise
     else:
         index = {n: i for i, n in enumerate(names)}
