@@ -24,6 +24,9 @@ def add_prepare_parser(sub) -> None:
     s.add_argument("--no-crop", action="store_true", help="keep the whole frame instead of cropping around the person")
     s.add_argument("--no-refine", action="store_true", help="keep the segmenter's mask (no GrabCut refinement)")
     s.add_argument("--no-fill-holes", action="store_true", help="keep small enclosed holes in the mask")
+    s.add_argument("--no-turn", action="store_true",
+                   help="keep the frames as stored even when the person lies on their side or stands upside down "
+                        "in them (by default they are read turned so that the person stands)")
     s.add_argument("--height", type=float, default=None, metavar="METRES",
                    help="the person's height: fixes the body size one camera cannot tell (default: a population prior)")
     s.add_argument("--no-shape", action="store_true", help="keep the default body shape (fit poses only)")
@@ -70,7 +73,7 @@ def run_prepare(args: argparse.Namespace) -> int:
     detector.resolve()  # a missing detector is reported before the input is read
     out, report = prepare_video(args.video, args.out, detector=detector, fit_config=FitConfig(**kw),
                                 max_size=args.size, every=args.every, max_frames=args.max_frames,
-                                person=args.person, crop=not args.no_crop, fill_holes=not args.no_fill_holes,
+                                person=args.person, crop=not args.no_crop, fill_holes=not args.no_fill_holes, turn=not args.no_turn,
                                 report_image=not args.no_report_image)
     print(json.dumps(report, indent=1) if args.json else format_report(report))
     print(f"wrote {out}")

@@ -265,6 +265,75 @@ def test_window_search_maps_a_detection_back_onto_the_frame():
     assert pose.calls == [(300, 300)] and np.allclose(lm[0, :2] * 300, [60, 50], atol=0.5)
 
 
+def test_quarter_turns_stand_a_turned_person_up():
+    """``people.quarter_turns`` on a person's keypoints turned by each angle: the quarter turns it
+    returns, applied to the keypoints as ``np.rot90`` turns the frame, leave the body within 45 deg of
+    upright; a lean under 60 deg is kept as it is; frames without the shoulders and hips seen say
+    nothing."""
+    from reconstruct.data.prepare.people import PersonTrack, quarter_turns
+
+    H = W = 200
+    upright = np.zeros((33, 2))
+    upright[[11, 12]] = [[90, 60], [110, 60]]  # shoulders
+    upright[[23, 24]] = [[92, 120], [108, 120]]  # hips
+
+    def turned(deg):  # the keypoints of the frame turned clockwise by deg about its centre
+        a = np.radians(deg)
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        return (upright - 100) @ R.T + 100
+
+    def track(kp, vis=1.0):
+        c = PersonCandidate((0.0, 0.0, W, H), np.zeros((H, W), bool), kp, np.full(33, vis))
+        return PersonTrack(1, 1, "auto", [c, None], [[], []])
+
+    def rot90_points(kp, k):  # where np.rot90(frame, k) puts pixel positions (x right, y down)
+        for _ in range(k % 4):
+            kp = np.stack([kp[:, 1], W - kp[:, 0]], 1)
+        return kp
+
+    for deg, expect in ((0, 0), (30, 0), (-55, 0), (90, 1), (-90, 3), (180, 2), (-175, 2), (120, 1), (250, 3)):
+        k, angle = quarter_turns(track(turned(deg)))
+        assert k == expect, (deg, k, angle)
+        after = rot90_points(turned(deg), k)
+        up = after[[11, 12]].mean(0) - after[[23, 24]].mean(0)
+        assert abs(np.degrees(np.arctan2(up[0], -up[1]))) <= 45.0 + 1e-6 or k == 0, (deg, k)
+    assert quarter_turns(track(turned(180), vis=0.2)) == (0, 0.0)
+
+
+def test_a_person_on_their_side_is_read_standing_with_mediapipe(synth, tmp_path):
+    """A frame stored on its side (no orientation tag): ``prepare`` reads it turned so the person
+    stands, says so, and fits as on the upright frame; with ``turn=False`` it keeps the frame as
+    stored."""
+    python = detector_python()
+    if python is None:
+        pytest.skip("no Python with mediapipe==0.10.21")
+    from reconstruct.data.prepare import MediapipeDetector
+
+    det = MediapipeDetector(python)
+    upright = synth.frames[0].image
+    side = _png(tmp_path / "side.png", np.rot90(upright, 1))  # the head towards the left
+    logs = []
+    _, up_report = prepare_video(_png(tmp_path / "up.png", upright), tmp_path / "up", detector=det,
+                                 fit_config=QUICK, log=lambda m: None)
+    _, report = prepare_video(side, tmp_path / "side", detector=det, fit_config=QUICK, log=logs.append)
+    assert report["turned_deg"] == 270 and up_report["turned_deg"] == 0
+    assert any("reading them turned 270 deg" in m for m in logs)
+    assert report["mean_keypoint_px_error"] < up_report["mean_keypoint_px_error"] + 2.0
+    assert report["mean_silhouette_iou"] > up_report["mean_silhouette_iou"] - 0.05
+    _, kept = prepare_video(side, tmp_path / "kept", detector=det, fit_config=QUICK, turn=False, log=lambda m: None)
+    assert kept["turned_deg"] == 0
+
+
+def test_read_input_turns_images_and_videos(tmp_path):
+    from reconstruct.data.prepare.inputs import read_input
+
+    pic = _picture(40, 30)
+    Image.fromarray(pic).save(tmp_path / "p.png")
+    for k in range(4):
+        frame = read_input(tmp_path / "p.png", max_side=None, turns=k)[0].frames[0]
+        assert np.array_equal(frame, np.rot90(pic, k))
+
+
 # ----- crop and camera ------------------------------------------------------------------------------
 def test_crop_camera_reprojects_onto_the_same_pixels():
     from reconstruct.camera import Camera

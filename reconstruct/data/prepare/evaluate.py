@@ -58,5 +58,6 @@ def prepared_crop(scene_folder: Path) -> Crop:
 def in_prepared_frame(image: np.ndarray, crop: Crop) -> np.ndarray:
     """(H,W) float: an (h,w) map of the source video's frame (a true mask, a true silhouette) cropped
     and resized as ``prepare`` cropped that video (``crop``: ``prepared_crop`` of its scene folder),
-    bilinear."""
+    bilinear. The map is of the frame as ``prepare`` read it: turned as the report's ``turned_deg``
+    says when the person did not stand in the frames as stored."""
     return apply_crop(np.asarray(image, np.float32)[None], crop, resample="bilinear")[0]

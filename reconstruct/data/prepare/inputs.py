@@ -125,20 +125,21 @@ def list_images(folder: Path) -> list[Path]:
 
 
 def read_input(path: str | os.PathLike, *, max_side: int | None = 1920, every: int = 1,
-               max_frames: int | None = None, transform=None) -> tuple[Video, list[str]]:
-    """(frames, a name per frame) of a video, an image or a folder of images. ``transform`` (frame at the
+               max_frames: int | None = None, transform=None, turns: int = 0) -> tuple[Video, list[str]]:
+    """(frames, a name per frame) of a video, an image or a folder of images, each turned ``turns``
+    quarter turns counter-clockwise after its own orientation is applied. ``transform`` (frame at the
     file's size -> frame) replaces the resize to ``max_side`` and runs frame by frame (see ``read_video``)."""
     path = Path(path)
     kind = input_kind(path)
     if every < 1:
         raise ValueError(f"every must be at least 1, found {every}")
     if kind == "video":
-        v = read_video(path, max_size=max_side, every=every, max_frames=max_frames, transform=transform)
+        v = read_video(path, max_size=max_side, every=every, max_frames=max_frames, transform=transform, turns=turns)
         return v, [f"{path.name} frame {i}" for i in v.indices]
     files = [path] if kind == "image" else list_images(path)[::every]
     if max_frames:
         files = files[:max_frames]
-    images = [_read_image(f) for f in files]
+    images = [np.ascontiguousarray(np.rot90(_read_image(f), turns % 4)) for f in files]
     h, w = images[0].shape[:2]
     for f, im in zip(files, images):
         if im.shape[:2] != (h, w):

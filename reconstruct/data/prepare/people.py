@@ -75,3 +75,34 @@ def choose_person(people: list[list[PersonCandidate]], width: int, height: int,
                     prev = people[i][j]
             i += step
     return PersonTrack(k + 1, len(ordered), how, per_frame, others)
+
+
+TURN_AT_DEG = 60.0  # a person turned at least this far from upright in the frames is read turned
+_SHOULDERS, _HIPS = (11, 12), (23, 24)  # mediapipe's landmark indices
+
+
+def quarter_turns(track: PersonTrack, *, min_visibility: float = 0.5) -> tuple[int, float]:
+    """(k, angle): how the chosen person stands in the frames. ``angle`` is the degrees their body
+    (hips -> shoulders, averaged as unit vectors over the frames that show both pairs) is turned
+    from the image's up, clockwise positive; ``k`` the quarter turns counter-clockwise
+    (``np.rot90(frame, k)``) that stand them up when it is at least ``TURN_AT_DEG``, else 0 (a lean,
+    a dance: kept as it is). A photo stored sideways without an orientation tag, a clip from a
+    camera mounted on its side, a picture upside down."""
+    ups = []
+    for c in track.per_frame:
+        if c is None:
+            continue
+        idx = list(_SHOULDERS + _HIPS)
+        if (c.visibility[idx] < min_visibility).any():
+            continue
+        up = c.keypoints[list(_SHOULDERS)].mean(0) - c.keypoints[list(_HIPS)].mean(0)
+        n = float(np.hypot(*up))
+        if n > 0:
+            ups.append(up / n)
+    if not ups:
+        return 0, 0.0
+    x, y = np.mean(ups, axis=0)
+    angle = float(np.degrees(np.arctan2(x, -y)))  # 0: head up; 90: head to the right; 180: upside down
+    if abs(angle) < TURN_AT_DEG:
+        return 0, angle
+    return int(round(angle / 90.0)) % 4, angle

@@ -35,7 +35,7 @@ from .lean import side_view
 from .masks import fill_holes as fill_mask_holes
 from .masks import remove_others
 from .matting import decontaminate
-from .people import PersonChoiceError, PersonTrack, choose_person
+from .people import PersonChoiceError, PersonTrack, choose_person, quarter_turns
 from .report_image import REPORT_IMAGE, ReportFrame, pick_frames, write_report_image
 from .shape import ShapeBasis, body_height
 from .video import Video, working_size
@@ -132,7 +132,7 @@ def _others_in_crop(track: PersonTrack, sample: list[int], ps: float, cr: Crop, 
 def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, detector: PersonDetector,
                   fit_config: FitConfig = FitConfig(), max_size: int | None = 512, every: int = 1,
                   max_frames: int | None = None, phenotype: dict | None = None, person: int | None = None,
-                  crop: bool = True, fill_holes: bool = True, report_image: bool = True,
+                  crop: bool = True, fill_holes: bool = True, report_image: bool = True, turn: bool = True,
                   log=_log) -> tuple[Path, dict]:
     """Make a scene folder ``out`` from a video, an image or a folder of images; returns (folder, report).
     Nothing is written unless every step succeeds."""
@@ -149,8 +149,22 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
     log(f"{video_path}: {T} {'frame' if T == 1 else 'frames'} of {W0}x{H0}"
         + (f", {preview.fps:g} fps" if kind == "video" else ""))
     track, sample = None, []
+    turns = 0
     if crop or person is not None:
         track, sample = _find_person(preview, names, detector, person, str(video_path), log)
+        if turn and track is not None:
+            turns, angle = quarter_turns(track)
+            if turns:
+                # the person lies on their side or stands on their head in the frames as stored: read
+                # them turned so that they stand (the fit, the upright prior and the crop assume it)
+                log(f"the person stands {abs(angle):.0f} deg from upright in the frames "
+                    f"({'upside down' if turns == 2 else 'on their side'}): reading them turned "
+                    f"{90 * turns} deg counter-clockwise (--no-turn keeps them as stored)")
+                preview, names = read_input(video_path, max_side=PEOPLE_SIZE, every=every, max_frames=max_frames,
+                                            turns=turns)
+                W0, H0 = preview.source_size
+                ps = preview.frames.shape[2] / W0
+                track, sample = _find_person(preview, names, detector, person, str(video_path), log)
     box = None
     if track is not None and crop:
         ub = track.union_box()
@@ -162,7 +176,7 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
         side = max(box[2] - box[0], box[3] - box[1]) * (1 + 2 * CROP_MARGIN)
         cr = person_crop(box, W0, H0, int(min(max_size or 10 ** 6, max(64, math.ceil(side)))), margin=CROP_MARGIN)
     video, _ = read_input(video_path, every=every, max_frames=max_frames,
-                          transform=lambda f: apply_crop(f[None], cr)[0])
+                          transform=lambda f: apply_crop(f[None], cr)[0], turns=turns)
     if len(video.frames) != T:
         raise InputError(f"{video_path}: gave {len(video.frames)} frames on the second reading, {T} on the first")
     frames = video.frames
@@ -240,7 +254,7 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
         "image_size": [W, H], "source_size": list(video.source_size), "fps": video.fps,
         "person": None if track is None else {"picked": track.index, "people_found": track.count,
                                               "picked_by": track.picked_by},
-        "crop": cr.to_dict(), "source_frame_size": [W0, H0],
+        "crop": cr.to_dict(), "source_frame_size": [W0, H0], "turned_deg": 90 * turns,
         "masks": {"refined_frames": None if kept.refine_used is None else int(kept.refine_used.sum()),
                   "holes_filled": holes},
         "detector": detector.describe() | kept.info,

@@ -59,9 +59,9 @@ def probe_video(path: str | os.PathLike) -> tuple[int, int]:
 
 
 def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: int = 1,
-               max_frames: int | None = None, transform=None) -> Video:
+               max_frames: int | None = None, transform=None, turns: int = 0) -> Video:
     """Frames of ``path`` (every ``every``-th, at most ``max_frames``), upright (``display_rotation``),
-    longer side at most ``max_size``;
+    then turned ``turns`` quarter turns counter-clockwise more, longer side at most ``max_size``;
     ``transform`` (frame at the file's size -> frame) replaces the resize and runs as each frame is decoded
     (a crop: only the cropped frames are held in memory).
     Raises FileNotFoundError for a missing file and VideoError for one that is not a decodable video."""
@@ -77,7 +77,7 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
     expected = f"expected a video file that ffmpeg can decode ({', '.join(VIDEO_SUFFIXES)})"
     frames, indices = [], []
     fps = 0.0
-    turns = display_rotation(path)
+    turns = (display_rotation(path) + turns) % 4
     try:
         meta = iio.immeta(path, plugin="pyav")
         fps = float(meta.get("fps") or 0.0)
