@@ -553,6 +553,64 @@ def test_a_grey_photo_wider_than_8_bits_is_read_at_its_range(tmp_path, kind):
         assert np.abs(frame[..., c] - grey).max() <= 1, (kind, frame[..., c].max())
 
 
+def _matrix_icc(colorants, gamma: float = 2.2, name: str = "Display P3 (test)") -> bytes:
+    """An ICC v2 RGB display profile (matrix and gamma curves), written byte by byte from the ICC
+    specification: the primaries' D50 XYZ ``colorants`` (red, green, blue), a pure ``gamma`` curve."""
+    import struct
+
+    def s15(v):
+        return struct.pack(">i", int(round(v * 65536)))
+
+    def xyz(v):
+        return b"XYZ " + b"\0" * 4 + b"".join(s15(c) for c in v)
+
+    d50 = (0.9642, 1.0, 0.8249)
+    text = name.encode() + b"\0"
+    desc = b"desc" + b"\0" * 4 + struct.pack(">I", len(text)) + text + struct.pack(">IIHB", 0, 0, 0, 0) + b"\0" * 67
+    curv = b"curv" + b"\0" * 4 + struct.pack(">IH", 1, int(round(gamma * 256)))
+    tags = [(b"desc", desc), (b"wtpt", xyz(d50)), (b"rXYZ", xyz(colorants[0])), (b"gXYZ", xyz(colorants[1])),
+            (b"bXYZ", xyz(colorants[2])), (b"rTRC", curv), (b"gTRC", curv), (b"bTRC", curv),
+            (b"cprt", b"text" + b"\0" * 4 + b"none\0")]
+    start = 128 + 4 + 12 * len(tags)
+    table, data = b"", b""
+    for sig, body in tags:
+        table += sig + struct.pack(">II", start + len(data), len(body))
+        data += body + b"\0" * (-len(body) % 4)
+    head = (struct.pack(">I", start + len(data)) + b"\0" * 4 + struct.pack(">I", 0x02100000) + b"mntrRGB XYZ "
+            + b"\0" * 12 + b"acsp" + b"\0" * 28 + b"".join(s15(c) for c in d50))
+    return head + b"\0" * (128 - len(head)) + struct.pack(">I", len(tags)) + table + data
+
+
+# Display P3's primaries adapted to D50 (as Apple's profile states them), and sRGB's
+P3_D50 = ((0.5151, 0.2412, -0.0011), (0.2920, 0.6922, 0.0419), (0.1571, 0.0666, 0.7841))
+SRGB_D50 = ((0.4361, 0.2225, 0.0139), (0.3851, 0.7169, 0.0971), (0.1431, 0.0606, 0.7141))
+
+
+def test_a_photo_with_a_wide_gamut_profile_is_read_in_srgb(tmp_path):
+    """A Display P3 photo (iPhones) is read in sRGB: each colour as the profile's primaries and
+    curve say, computed here independently (P3 -> XYZ D50 -> sRGB, its piecewise curve), within
+    one level; read as sRGB numbers it was duller. A JPEG's blocks the same within its rounding; a
+    profile that cannot be parsed leaves the pixels as stored."""
+    from reconstruct.data.prepare.inputs import read_input
+
+    colours = np.array([[200, 100, 50], [60, 160, 90], [128, 128, 128], [30, 60, 200]], np.uint8)
+    lin = (colours / 255.0) ** 2.2
+    srgb_lin = np.linalg.solve(np.array(SRGB_D50).T, np.array(P3_D50).T @ lin.T).T
+    enc = np.where(srgb_lin <= 0.0031308, 12.92 * srgb_lin, 1.055 * np.clip(srgb_lin, 0, None) ** (1 / 2.4) - 0.055)
+    expected = np.clip(np.round(enc * 255), 0, 255)
+    icc = _matrix_icc(P3_D50)
+    Image.fromarray(colours[None]).save(tmp_path / "p3.png", icc_profile=icc)
+    got = read_input(tmp_path / "p3.png", max_side=None)[0].frames[0, 0].astype(float)
+    assert np.abs(got - expected).max() <= 1.0, (got, expected)
+    assert np.abs(expected - colours).max() >= 15  # the conversion is not a no-op on these colours
+    blocks = np.repeat(np.repeat(colours[None], 16, 0), 16, 1)
+    Image.fromarray(blocks).save(tmp_path / "p3.jpg", quality=100, icc_profile=icc, subsampling=0)
+    got = read_input(tmp_path / "p3.jpg", max_side=None)[0].frames[0][8, 8::16].astype(float)
+    assert np.abs(got - expected).max() <= 3.0, (got, expected)
+    Image.fromarray(colours[None]).save(tmp_path / "broken.png", icc_profile=b"not a profile at all")
+    assert np.array_equal(read_input(tmp_path / "broken.png", max_side=None)[0].frames[0, 0], colours)
+
+
 def test_a_phones_heic_photo_is_read(tmp_path):
     """iPhones store photos as HEIC: read through pillow-heif's opener (which itself applies the file's
     own rotation, its ``irot``, on decode and resets the EXIF tag, so the photo is turned once)."""

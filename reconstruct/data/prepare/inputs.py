@@ -63,16 +63,39 @@ def _wide_to_rgb(im) -> np.ndarray:
     return np.repeat(grey[..., None], 3, axis=-1)
 
 
+def _to_srgb(im):
+    """``im`` with its embedded ICC profile's colours converted to sRGB, which everything after
+    (training, the renders, the viewer) takes pixels to be: an iPhone's Display P3 photo, a camera's
+    Adobe RGB JPEG, a print CMYK JPEG. Read as sRGB numbers, P3 and Adobe RGB colours came out
+    duller than the photo. Without a profile, or with one that cannot be applied, ``im`` as it is."""
+    icc = im.info.get("icc_profile")
+    if not icc or im.mode not in ("RGB", "RGBA", "L", "CMYK"):
+        return im
+    try:
+        from io import BytesIO
+
+        from PIL import ImageCms
+
+        source = ImageCms.ImageCmsProfile(BytesIO(icc))
+        if "srgb" in ImageCms.getProfileDescription(source).lower().replace(" ", ""):
+            return im
+        out_mode = "RGBA" if im.mode == "RGBA" else "RGB"
+        return ImageCms.profileToProfile(im, source, ImageCms.createProfile("sRGB"), outputMode=out_mode)
+    except Exception:  # noqa: BLE001 - a profile littlecms cannot use: the pixels as stored
+        return im
+
+
 def _upright_rgb(im) -> np.ndarray:
     """(H,W,3) uint8 of a PIL image as it is meant to be seen: turned by its EXIF orientation (a phone
-    stores a portrait photo sideways and says so in the tag) and, when it has transparency (a cut-out
-    PNG), laid over ``CUTOUT_BACKGROUND``."""
+    stores a portrait photo sideways and says so in the tag), its colours in sRGB (``_to_srgb``) and,
+    when it has transparency (a cut-out PNG), laid over ``CUTOUT_BACKGROUND``."""
     from PIL import Image, ImageOps
 
     try:
         im = ImageOps.exif_transpose(im) or im
     except Exception:  # noqa: BLE001 - a broken EXIF block: the pixels as stored, not a refused photo
         pass
+    im = _to_srgb(im)
     if im.mode in WIDE_MODES:
         return _wide_to_rgb(im)
     if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
