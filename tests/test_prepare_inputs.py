@@ -298,6 +298,12 @@ def test_quarter_turns_stand_a_turned_person_up():
         up = after[[11, 12]].mean(0) - after[[23, 24]].mean(0)
         assert abs(np.degrees(np.arctan2(up[0], -up[1]))) <= 45.0 + 1e-6 or k == 0, (deg, k)
     assert quarter_turns(track(turned(180), vis=0.2)) == (0, 0.0)
+    # a cartwheel: frames upright, on each side and upside down disagree, and nothing is turned
+    wheel = PersonTrack(1, 1, "auto", [track(turned(d)).per_frame[0] for d in (0, 90, 180, 270, 170)], [[]] * 5)
+    assert quarter_turns(wheel)[0] == 0
+    # most frames upside down, one leaning: turned
+    mostly = PersonTrack(1, 1, "auto", [track(turned(d)).per_frame[0] for d in (180, 175, 185, 150)], [[]] * 4)
+    assert quarter_turns(mostly)[0] == 2
 
 
 def test_a_person_on_their_side_is_read_standing_with_mediapipe(synth, tmp_path):

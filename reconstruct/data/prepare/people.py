@@ -78,6 +78,9 @@ def choose_person(people: list[list[PersonCandidate]], width: int, height: int,
 
 
 TURN_AT_DEG = 60.0  # a person turned at least this far from upright in the frames is read turned
+# the frames must agree on it: the length of the mean of their unit body directions (a cartwheel,
+# whose directions cancel out, is kept as it is)
+MIN_AGREEMENT = 0.7
 _SHOULDERS, _HIPS = (11, 12), (23, 24)  # mediapipe's landmark indices
 
 
@@ -85,8 +88,8 @@ def quarter_turns(track: PersonTrack, *, min_visibility: float = 0.5) -> tuple[i
     """(k, angle): how the chosen person stands in the frames. ``angle`` is the degrees their body
     (hips -> shoulders, averaged as unit vectors over the frames that show both pairs) is turned
     from the image's up, clockwise positive; ``k`` the quarter turns counter-clockwise
-    (``np.rot90(frame, k)``) that stand them up when it is at least ``TURN_AT_DEG``, else 0 (a lean,
-    a dance: kept as it is). A photo stored sideways without an orientation tag, a clip from a
+    (``np.rot90(frame, k)``) that stand them up when it is at least ``TURN_AT_DEG`` and the frames
+    agree on it (``MIN_AGREEMENT``), else 0 (a lean, a dance, a cartwheel: kept as they are). A photo stored sideways without an orientation tag, a clip from a
     camera mounted on its side, a picture upside down."""
     ups = []
     for c in track.per_frame:
@@ -103,6 +106,6 @@ def quarter_turns(track: PersonTrack, *, min_visibility: float = 0.5) -> tuple[i
         return 0, 0.0
     x, y = np.mean(ups, axis=0)
     angle = float(np.degrees(np.arctan2(x, -y)))  # 0: head up; 90: head to the right; 180: upside down
-    if abs(angle) < TURN_AT_DEG:
+    if abs(angle) < TURN_AT_DEG or np.hypot(x, y) < MIN_AGREEMENT:
         return 0, angle
     return int(round(angle / 90.0)) % 4, angle
