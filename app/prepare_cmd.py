@@ -73,8 +73,8 @@ def run_prepare(args: argparse.Namespace) -> int:
     detector.resolve()  # a missing detector is reported before the input is read
     out, report = prepare_video(args.video, args.out, detector=detector, fit_config=FitConfig(**kw),
                                 max_size=args.size, every=args.every, max_frames=args.max_frames,
-                                person=args.person, crop=not args.no_crop, fill_holes=not args.no_fill_holes, turn=not args.no_turn,
-                                report_image=not args.no_report_image)
+                                person=args.person, crop=not args.no_crop, fill_holes=not args.no_fill_holes,
+                                turn=not args.no_turn, report_image=not args.no_report_image)
     print(json.dumps(report, indent=1) if args.json else format_report(report))
     print(f"wrote {out}")
     return 0

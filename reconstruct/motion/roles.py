@@ -93,12 +93,13 @@ def without_rig_prefix(names: list[str]) -> list[str]:
     """Normalised joint names with a prefix that every joint but the first shares dropped (3ds Max
     Biped's "Bip01 L Thigh", HumanIK's "Character1_LeftUpLeg", Rigify's "DEF-thigh.L"): the first
     joint (the root) may be the prefix alone ("Bip01") and keeps its name then. Unchanged with
-    fewer than 4 joints or when dropping the prefix would leave a name empty."""
+    fewer than 4 joints, for a prefix under 3 letters or one that starts with a side ("left..."),
+    or when dropping the prefix would leave a name empty."""
     rest = names[1:]
     if len(names) < 4:
         return list(names)
     prefix = os.path.commonprefix(rest)
-    if not prefix or any(len(n) == len(prefix) for n in rest):
+    if len(prefix) < 3 or prefix.startswith(("left", "right")) or any(len(n) == len(prefix) for n in rest):
         return list(names)
     first = names[0][len(prefix):] if names[0].startswith(prefix) and len(names[0]) > len(prefix) else names[0]
     return [first] + [n[len(prefix):] for n in rest]

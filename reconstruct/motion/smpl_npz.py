@@ -4,7 +4,8 @@ Keys: ``poses`` (T, 3K) axis-angles with the root first (72 for SMPL, 156 for SM
 SMPL-X; ``smpl_poses`` as AIST++ names it), or ``root_orient`` (T,3) with ``pose_body`` (T,63), or
 ``global_orient`` with ``body_pose`` as the smplx library names them (axis-angles or rotation
 matrices, SMPL-X's 21 body joints or SMPL's 23); ``trans`` (T,3) in metres (``transl``, or AIST++'s
-``smpl_trans`` divided by its ``smpl_scaling``; zero when missing); the frame rate in ``mocap_framerate``, ``mocap_frame_rate``, ``fps`` or ``frame_rate``.
+``smpl_trans`` divided by its ``smpl_scaling``; zero when missing); the frame rate in
+``mocap_framerate``, ``mocap_frame_rate``, ``fps`` or ``frame_rate``.
 The first 22 joints (the body) are used; hands, jaw and eyes are ignored, as are ``betas``,
 ``gender`` and anything else. Files are opened with ``allow_pickle=False``: pickled objects are
 refused.
@@ -160,7 +161,8 @@ def read_smpl_npz(path: str | os.PathLike, *, default_fps: float = 30.0) -> Moti
             # AIST++: the translation is in the units of a body scaled by smpl_scaling
             scale = np.asarray(arrays["smpl_scaling"], np.float64).reshape(-1)
             if scale.size != 1 or not np.isfinite(scale[0]) or scale[0] <= 0:
-                raise MotionFileError(f"{path}: 'smpl_scaling' must be one positive number, found {arrays['smpl_scaling']!r}")
+                raise MotionFileError(f"{path}: 'smpl_scaling' must be one positive number, "
+                                      f"found {arrays['smpl_scaling']!r}")
             trans = trans / scale[0]
             notes.append(f"'smpl_trans' divided by 'smpl_scaling' ({scale[0]:g})")
     else:

@@ -89,13 +89,14 @@ def quarter_turns(track: PersonTrack, *, min_visibility: float = 0.5) -> tuple[i
     (hips -> shoulders, averaged as unit vectors over the frames that show both pairs) is turned
     from the image's up, clockwise positive; ``k`` the quarter turns counter-clockwise
     (``np.rot90(frame, k)``) that stand them up when it is at least ``TURN_AT_DEG`` and the frames
-    agree on it (``MIN_AGREEMENT``), else 0 (a lean, a dance, a cartwheel: kept as they are). A photo stored sideways without an orientation tag, a clip from a
-    camera mounted on its side, a picture upside down."""
+    agree on it (``MIN_AGREEMENT``), else 0 (a lean, a dance, a cartwheel: kept as they are). For a
+    photo stored sideways without an orientation tag, a clip from a camera mounted on its side, a
+    picture upside down."""
     ups = []
+    idx = list(_SHOULDERS + _HIPS)
     for c in track.per_frame:
         if c is None:
             continue
-        idx = list(_SHOULDERS + _HIPS)
         if (c.visibility[idx] < min_visibility).any():
             continue
         up = c.keypoints[list(_SHOULDERS)].mean(0) - c.keypoints[list(_HIPS)].mean(0)
