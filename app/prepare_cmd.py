@@ -11,7 +11,8 @@ def add_prepare_parser(sub) -> None:
     s = sub.add_parser("prepare", help="make a scene folder from a video, an image or a folder of images: frames, "
                                        "person masks, mediapipe keypoints, fitted body shape, poses and camera")
     s.add_argument("video", type=Path, metavar="INPUT",
-                   help="video file (.mp4, .mov, ...), image (.jpg, .png, .webp, ...) or folder of images (sorted by name)")
+                   help="video file (.mp4, .mov, ...), image (.jpg, .png, .webp, ...) or folder of images "
+                        "(in name order, numbers by value: frame2 before frame10)")
     s.add_argument("--out", required=True, type=Path, help="scene folder to write (replaced if it is one)")
     s.add_argument("--size", type=int, default=512,
                    help="longer side of the scene's frames in pixels (default 512; a person crop smaller than this "

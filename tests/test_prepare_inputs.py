@@ -617,6 +617,25 @@ def test_a_photo_with_a_wide_gamut_profile_is_read_in_srgb(tmp_path):
     assert np.array_equal(read_input(tmp_path / "broken.png", max_side=None)[0].frames[0, 0], colours)
 
 
+def test_a_folder_is_read_in_frame_order_without_hidden_files(tmp_path):
+    """Frames numbered without leading zeros come in the order of their numbers (frame2 before
+    frame10; sorted as text, frame10 came second); a Mac's ``._`` metadata file beside each photo
+    and other hidden files are left out (they ended the read with 'cannot be read as an image')."""
+    from reconstruct.data.prepare.inputs import list_images, read_input
+
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    for i in (1, 2, 10, 11, 3):
+        Image.fromarray(np.full((8, 6, 3), 20 * i, np.uint8)).save(folder / f"frame{i}.png")
+    (folder / "._frame1.png").write_bytes(b"\x00\x05\x16\x07 AppleDouble metadata")
+    (folder / ".thumb.png").write_bytes(b"not a picture")
+    assert [p.name for p in list_images(folder)] == ["frame1.png", "frame2.png", "frame3.png", "frame10.png",
+                                                    "frame11.png"]
+    video, names = read_input(folder, max_side=None)
+    assert names == ["frame1.png", "frame2.png", "frame3.png", "frame10.png", "frame11.png"]
+    assert video.frames[:, 0, 0, 0].tolist() == [20, 40, 60, 200, 220]
+
+
 def test_a_phones_heic_photo_is_read(tmp_path):
     """iPhones store photos as HEIC: read through pillow-heif's opener (which itself applies the file's
     own rotation, its ``irot``, on decode and resets the EXIF tag, so the photo is turned once)."""

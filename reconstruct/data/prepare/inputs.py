@@ -1,4 +1,5 @@
-"""What ``prepare`` accepts: a video, one image (jpg/png/webp/...), or a folder of images (sorted by name).
+"""What ``prepare`` accepts: a video, one image (jpg/png/webp/...), or a folder of images (in the
+order of their names, numbers by value).
 Images are read upright (their EXIF orientation applied) and cut-outs over a light wall
 (``CUTOUT_BACKGROUND``); videos are turned by their display rotation (``video.read_video``).
 
@@ -138,8 +139,20 @@ def _resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return np.asarray(Image.fromarray(frame).resize(size, Image.Resampling.LANCZOS))
 
 
+def natural_key(name: str) -> list:
+    """Sort key that orders the numbers in a name by value: frame2 before frame10 (exporters often
+    number frames without leading zeros)."""
+    import re
+
+    return [(0, int(t), t) if t.isdigit() else (1, 0, t.lower()) for t in re.split(r"(\d+)", name) if t]
+
+
 def list_images(folder: Path) -> list[Path]:
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    """The images of a folder in frame order (``natural_key``), hidden files left out (a copy from a
+    Mac leaves ``._IMG_0001.JPG`` beside each photo: metadata, not a picture)."""
+    files = sorted((p for p in folder.iterdir()
+                    if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".")),
+                   key=lambda p: natural_key(p.name))
     if not files:
         others = sorted(p.name for p in folder.iterdir())[:5]
         raise InputError(f"{folder}: the folder holds no images (expected files ending in "
