@@ -138,6 +138,12 @@ def test_broken_gltf_files_are_refused_naming_the_file(tmp_path):
         with pytest.raises(MotionFileError, match=pattern):
             load_motion(p)
 
+    # root motion put on the armature node above the skeleton: read, and noted as ignored
+    moved = json.loads(json.dumps(good))
+    last = moved["animations"][0]["channels"][-1]
+    moved["animations"][0]["channels"].append({"sampler": last["sampler"], "target": {"node": 0, "path": "translation"}})
+    (tmp_path / "moved.gltf").write_text(json.dumps(moved))
+    assert any("'Armature', above the skeleton, ignored" in n for n in load_motion(tmp_path / "moved.gltf").notes)
     refused(dict(good, skins=[]), r"bad\.gltf: no skin")
     refused(dict(good, animations=[]), r"bad\.gltf: no animation in the file")
     outside = json.loads(json.dumps(good))

@@ -201,10 +201,11 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     parents = np.array([index.get(parent.get(n), -1) if k else -1 for k, n in enumerate(order)])
     rest = [_rest_trs(nodes[n]) for n in order]
     # the nodes above the skeleton's root (an armature's axes and scale): fixed
-    above = np.eye(4)
+    above, ancestors = np.eye(4), set()
     k = parent.get(order[0])
     while k is not None:
         above = _affine(*_rest_trs(nodes[k])) @ above
+        ancestors.add(k)
         k = parent.get(k)
     world0 = np.zeros((J, 4, 4))
     for k in range(J):
@@ -223,6 +224,9 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     for ch in anim.get("channels", []):
         target = ch.get("target", {})
         node, what = target.get("node"), target.get("path")
+        if node in ancestors and what in ("translation", "rotation"):
+            notes.append(f"the animated {what} of {nodes[node].get('name', f'node {node}')!r}, above the skeleton, "
+                         "ignored (the clip moves with its root joint)")
         if node not in index:
             continue
         try:
