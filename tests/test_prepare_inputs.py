@@ -212,6 +212,34 @@ def test_a_small_person_in_a_wide_frame_is_found_with_mediapipe(synth):
         assert abs(y_lo - (y0 + ys.min())) < 30 and abs(y_hi - (y0 + ys.max())) < 30, people[0].box
 
 
+def test_the_detector_reports_progress_frame_by_frame_with_mediapipe(synth, tmp_path):
+    """The worker's frames are counted as they are done (a long clip's detection and mask refinement
+    took minutes without a line), ``prepare`` logs them, and a worker past its time limit is
+    stopped with a clear error."""
+    python = detector_python()
+    if python is None:
+        pytest.skip("no Python with mediapipe==0.10.21")
+    from reconstruct.data.prepare import MediapipeDetector
+    from reconstruct.data.prepare.detector import DetectorError
+
+    frames = np.stack([(f.image * 255).astype(np.uint8) for f in synth.frames[:3]])
+    det = MediapipeDetector(python)
+    seen = []
+    det.progress = lambda stage, done, total: seen.append((stage, done, total))
+    det.detect(frames)
+    assert [x for x in seen if x[0] == "poses"] == [("poses", k, 3) for k in (1, 2, 3)]
+    assert [x for x in seen if x[0] == "masks"] == [("masks", k, 3) for k in (1, 2, 3)]
+    seen.clear()
+    det.find_people(frames[:2])
+    assert seen[0] == ("people", 0, 2) and seen[-1] == ("people", 2, 2)
+    logs = []
+    prepare_video(_png(tmp_path / "one.png", synth.frames[0].image), tmp_path / "one", detector=det,
+                  fit_config=QUICK, log=logs.append)
+    assert "detecting poses: 1/1 frames" in " | ".join(logs) and "refining masks: 1/1 frames" in " | ".join(logs)
+    with pytest.raises(DetectorError, match=r"did not finish 3 frames within 0\.05 s"):
+        MediapipeDetector(python, timeout_s=0.05).detect(frames)
+
+
 def test_window_search_maps_a_detection_back_onto_the_frame():
     """``detect_one`` on a stand-in detector that sees a person (a bright block) only in square
     images: nobody in the wide frame, found in a window, and its landmarks and segmentation put back

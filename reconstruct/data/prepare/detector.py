@@ -17,6 +17,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -118,6 +119,9 @@ class PersonCandidate:
 
 class PersonDetector(ABC):
     name: str = "detector"
+    # called as progress(stage, done, total) while frames are worked through, where the detector can
+    # tell (``prepare_video`` sets it to log lines); None: nothing is reported
+    progress = None
 
     @abstractmethod
     def detect(self, frames: np.ndarray) -> Detections:
@@ -238,15 +242,32 @@ class MediapipeDetector(PersonDetector):
             np.savez(inp, images=frames)
             env = {**os.environ, "GLOG_minloglevel": "2", "TF_CPP_MIN_LOG_LEVEL": "2"}
             env.pop("PYTHONPATH", None)  # the worker must not see this venv's packages (numpy 2)
-            try:
-                proc = subprocess.run([python, str(WORKER), str(inp), str(out),
-                                       "--model-complexity", str(self.model_complexity), *extra],
-                                      capture_output=True, text=True, timeout=self.timeout_s, env=env)
-            except subprocess.TimeoutExpired as exc:
+            err_path = Path(tmp) / "stderr.txt"
+            with open(err_path, "w") as err:
+                proc = subprocess.Popen([python, str(WORKER), str(inp), str(out), "--progress",
+                                         "--model-complexity", str(self.model_complexity), *extra],
+                                        stdout=subprocess.PIPE, stderr=err, text=True, env=env)
+                timer, killed = None, threading.Event()
+                if self.timeout_s is not None:
+                    timer = threading.Timer(self.timeout_s, lambda: (killed.set(), proc.kill()))
+                    timer.start()
+                try:
+                    for line in proc.stdout:  # 'progress STAGE DONE TOTAL' lines as frames are done
+                        parts = line.split()
+                        if len(parts) == 4 and parts[0] == "progress" and self.progress is not None:
+                            self.progress(parts[1], int(parts[2]), int(parts[3]))
+                    proc.wait()
+                finally:
+                    if timer is not None:
+                        timer.cancel()
+                    if proc.poll() is None:
+                        proc.kill()
+                        proc.wait()
+            if killed.is_set():
                 raise DetectorError(f"the mediapipe worker ({python}) did not finish {T} frames within "
-                                    f"{self.timeout_s} s") from exc
+                                    f"{self.timeout_s} s")
             if proc.returncode != 0 or not out.is_file():
-                tail = "\n".join(proc.stderr.strip().splitlines()[-8:])
+                tail = "\n".join(err_path.read_text(errors="replace").strip().splitlines()[-8:])
                 raise DetectorError(f"the mediapipe worker ({python} {WORKER.name}) failed with exit code "
                                     f"{proc.returncode}:\n{tail}")
             return parse(out)

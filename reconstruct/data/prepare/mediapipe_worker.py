@@ -32,6 +32,12 @@ os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
 NUM_LANDMARKS = 33
 
 
+def report(args, stage: str, done: int, total: int) -> None:
+    """One progress line on stdout (with ``--progress``): 'progress STAGE DONE TOTAL'."""
+    if getattr(args, "progress", False):
+        print(f"progress {stage} {done} {total}", flush=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("inp")
@@ -42,6 +48,8 @@ def main(argv=None) -> int:
     ap.add_argument("--refine", action="store_true", help="refine the masks with GrabCut (OpenCV)")
     ap.add_argument("--mode", choices=["pose", "people"], default="pose")
     ap.add_argument("--max-people", type=int, default=6)
+    ap.add_argument("--progress", action="store_true",
+                    help="print 'progress STAGE DONE TOTAL' lines on stdout as frames are done")
     args = ap.parse_args(argv)
 
     import numpy as np
@@ -71,6 +79,7 @@ def main(argv=None) -> int:
                       min_tracking_confidence=0.5) as pose:
         for i in range(T):
             result = pose.process(np.ascontiguousarray(images[i]))
+            report(args, "poses", i + 1, T)
             if result.pose_landmarks is None:
                 continue
             found[i] = True
@@ -87,6 +96,7 @@ def main(argv=None) -> int:
         raw = masks.copy()
         used = np.zeros(T, bool)
         for i in range(T):
+            report(args, "masks", i + 1, T)
             if not found[i]:
                 continue
             kp = landmarks[i, :, :2] * np.array([W, H], np.float32)
@@ -190,6 +200,7 @@ def find_people(images, args, mp, mp_pose) -> int:
     with mp_pose.Pose(static_image_mode=True, model_complexity=args.model_complexity, enable_segmentation=True,
                       min_detection_confidence=args.min_detection_confidence) as pose:
         for i in range(T):
+            report(args, "people", i, T)
             work = images[i].copy()
             fill = np.median(images[i].reshape(-1, 3), axis=0).astype(np.uint8)
             boxes = []
@@ -221,6 +232,7 @@ def find_people(images, args, mp, mp_pose) -> int:
                 cw = (x1 - x0) // 6
                 core[y0:y1, x0 + cw:x1 - cw] = True
                 work[region | (core & ~np.any(regions[i, :p] > 0, axis=0))] = fill
+    report(args, "people", T, T)
     tmp = args.out + ".part.npz"
     np.savez(tmp, count=count, people=people, regions=regions, version=np.array(mp.__version__))
     os.replace(tmp, args.out)

@@ -90,6 +90,25 @@ def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+class _ProgressLog:
+    """A detector's ``progress`` as log lines: each stage's first frame, then at most one line per
+    ``every`` seconds, and its last frame ('detecting poses: 30/60 frames, 12 s')."""
+
+    WORDS = {"people": "finding people", "poses": "detecting poses", "masks": "refining masks"}
+
+    def __init__(self, log, every: float = 5.0) -> None:
+        self.log, self.every, self.last, self.start = log, every, {}, {}
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        now = time.perf_counter()
+        first = stage not in self.start
+        if first:
+            self.start[stage] = now
+        if first or done >= total or now - self.last.get(stage, 0.0) >= self.every:
+            self.last[stage] = now
+            self.log(f"{self.WORDS.get(stage, stage)}: {done}/{total} frames, {now - self.start[stage]:.0f} s")
+
+
 def _find_person(video: Video, names: list[str], detector: PersonDetector, person: int | None, source: str,
                  log) -> tuple[PersonTrack | None, list[int]]:
     """Everyone in (a sample of) the preview frames; the chosen person's track.
@@ -139,6 +158,7 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
     t0 = time.perf_counter()
     video_path = Path(video_path)
     out = check_output_folder(out)
+    detector.progress = _ProgressLog(log)
     # two passes over the input: a small preview to find the person, then the frames at the file's own
     # resolution, cropped as they are decoded (a long 4K clip is never held in memory whole)
     preview, names = read_input(video_path, max_side=PEOPLE_SIZE, every=every, max_frames=max_frames)
