@@ -11,7 +11,8 @@ rest translation carried into world axes by its parent's rest world matrix (scal
 
 Samplers: LINEAR (rotations by slerp), STEP and CUBICSPLINE (its key values, linearly; noted) are
 resampled at the keys' own rate. Animated scale and morph weights are ignored with a note; an
-animated translation is used for the root only (bone lengths are the avatar's). Buffers come from
+animated translation is used for the root only (bone lengths are the avatar's); nodes above the
+skeleton that the animation moves (root motion put on the armature) move the root. Buffers come from
 the GLB's binary chunk, from ``data:`` URIs, or from files next to a ``.gltf`` (never from a path
 that leaves its folder, never from the network). Nothing in a glTF file is code.
 """
@@ -200,13 +201,16 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     names = tuple(str(nodes[n].get("name") or f"node{n}") for n in order)
     parents = np.array([index.get(parent.get(n), -1) if k else -1 for k, n in enumerate(order)])
     rest = [_rest_trs(nodes[n]) for n in order]
-    # the nodes above the skeleton's root (an armature's axes and scale): fixed
-    above, ancestors = np.eye(4), set()
+    # the nodes above the skeleton's root (an armature's axes and scale), nearest first; at rest here,
+    # frame by frame below where the animation moves them (root motion put on the armature)
+    chain = []
     k = parent.get(order[0])
     while k is not None:
-        above = _affine(*_rest_trs(nodes[k])) @ above
-        ancestors.add(k)
+        chain.append(k)
         k = parent.get(k)
+    above = np.eye(4)
+    for k in chain:
+        above = _affine(*_rest_trs(nodes[k])) @ above
     world0 = np.zeros((J, 4, 4))
     for k in range(J):
         local = _affine(*rest[k])
@@ -224,10 +228,7 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     for ch in anim.get("channels", []):
         target = ch.get("target", {})
         node, what = target.get("node"), target.get("path")
-        if node in ancestors and what in ("translation", "rotation"):
-            notes.append(f"the animated {what} of {nodes[node].get('name', f'node {node}')!r}, above the skeleton, "
-                         "ignored (the clip moves with its root joint)")
-        if node not in index:
+        if node not in index and node not in chain:
             continue
         try:
             s = samplers[ch["sampler"]]
@@ -246,12 +247,13 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
         width = 4 if what == "rotation" else 3
         expect = len(keys) * (3 if interp == "CUBICSPLINE" else 1)
         if values.shape != (expect, width) or np.any(np.diff(keys) < 0):
-            raise MotionFileError(f"{path}: animation channel for {names[index[node]]!r} {what}: {len(keys)} key "
+            who = names[index[node]] if node in index else nodes[node].get("name", f"node {node}")
+            raise MotionFileError(f"{path}: animation channel for {who!r} {what}: {len(keys)} key "
                                   f"times and {values.shape[0]} values of width {values.shape[1]}")
-        tracks[(index[node], what)] = (keys, values, interp)
+        tracks[(index[node], what) if node in index else ("above", node, what)] = (keys, values, interp)
         key_times.append(keys)
         interpolations.add(interp)
-    if not tracks:
+    if not any(len(key) == 2 for key in tracks):
         raise MotionFileError(f"{path}: the first animation moves none of the skeleton's joints")
     if "CUBICSPLINE" in interpolations:
         notes.append("cubic-spline keys resampled linearly between their values")
@@ -263,23 +265,35 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     T = max(1, int(round((t1 - t0) * fps)) + 1)
     times = t0 + np.arange(T) / fps
 
+    def animated(key, k, what, rest_value):
+        """(T, 3, 3) rotations or (T, 3) translations of a channel, its rest value where none."""
+        if key not in tracks:
+            return np.broadcast_to(rest_value, (T,) + np.shape(rest_value))
+        keys, values, interp = tracks[key]
+        out = _sample(times, keys, values, interp, rotation=what == "rotation")
+        return quat_to_matrix(out) if what == "rotation" else out
+
+    # the nodes above the skeleton frame by frame (fixed unless the animation moves them)
+    above_t = np.broadcast_to(np.eye(4), (T, 4, 4)).copy()
+    for k in chain:
+        t_rest, R_rest, s_rest = _rest_trs(nodes[k])
+        M = np.broadcast_to(np.eye(4), (T, 4, 4)).copy()
+        M[:, :3, :3] = animated(("above", k, "rotation"), k, "rotation", R_rest) * s_rest[None, None, :]
+        M[:, :3, 3] = animated(("above", k, "translation"), k, "translation", t_rest)
+        above_t = M @ above_t
+    if any(key[0] == "above" for key in tracks if len(key) == 3):
+        notes.append("the nodes above the skeleton move: their motion is the root's")
+    above_rot_t = above_t[:, :3, :3] / np.linalg.norm(above_t[:, :3, :3], axis=1, keepdims=True)
+
     # the clip's local rotations, relative to world-aligned rest frames: R0_parent L(t) R0_joint^T
-    above_rot = above[:3, :3] / np.linalg.norm(above[:3, :3], axis=0)
+    # (the root's parent: the nodes above it, as they stand in each frame)
     local_out = np.zeros((T, J, 3, 3))
     for k in range(J):
-        if (k, "rotation") in tracks:
-            keys, values, interp = tracks[(k, "rotation")]
-            L = quat_to_matrix(_sample(times, keys, values, interp, rotation=True))
-        else:
-            L = np.broadcast_to(rest[k][1], (T, 3, 3))
-        local_out[:, k] = (above_rot if parents[k] < 0 else rot0[parents[k]]) @ L @ rot0[k].T
-    if (0, "translation") in tracks:
-        keys, values, interp = tracks[(0, "translation")]
-        tr = _sample(times, keys, values, interp, rotation=False)
-        root = (above[:3, :3] @ tr.T).T + above[:3, 3]
-    else:
-        root = np.broadcast_to(offsets[0], (T, 3)).copy()
-    moved = sorted({names[k] for (k, w) in tracks if w == "translation" and k != 0})
+        L = animated((k, "rotation"), k, "rotation", rest[k][1])
+        local_out[:, k] = (above_rot_t if parents[k] < 0 else rot0[parents[k]]) @ L @ rot0[k].T
+    tr = animated((0, "translation"), 0, "translation", rest[0][0])
+    root = np.einsum("tij,tj->ti", above_t[:, :3, :3], tr) + above_t[:, :3, 3]
+    moved = sorted({names[key[0]] for key in tracks if len(key) == 2 and key[1] == "translation" and key[0] != 0})
     if moved:
         notes.append(f"translations of {len(moved)} non-root joints ignored: bone lengths are the avatar's")
 
