@@ -70,6 +70,23 @@ def detect_rest_axes(names, positions: np.ndarray, naming: str = "bvh") -> tuple
     return up, forward, "detected from the rest skeleton"
 
 
+def skeleton_axes(source, names, positions: np.ndarray, up: str | None = None,
+                  forward: str | None = None) -> tuple[np.ndarray, np.ndarray, str, np.ndarray]:
+    """(up, forward, how, rest_to_body) of a file's rest skeleton: detected (``detect_rest_axes``)
+    unless ``up``/``forward`` ("+Y", "-Z", ...) are given; raises ``MotionFileError`` naming
+    ``source`` when the two are not perpendicular."""
+    from .clip import MotionFileError
+
+    up_v, fwd_v, how = detect_rest_axes(names, positions, "bvh")
+    if up is not None or forward is not None:
+        up_v = axis_vector(up) if up is not None else up_v
+        fwd_v = axis_vector(forward) if forward is not None else np.cross(np.cross(up_v, fwd_v), up_v)
+        how = "given"
+    if abs(up_v @ fwd_v) > 1e-6 or np.linalg.norm(fwd_v) < 1e-9:
+        raise MotionFileError(f"{source}: up {up_v} and forward {fwd_v} axes must be perpendicular")
+    return up_v, fwd_v, how, frame_to_body(up_v, fwd_v)
+
+
 def segment_length(positions: np.ndarray, chain: list[int]) -> float:
     return float(sum(np.linalg.norm(positions[b] - positions[a]) for a, b in itertools.pairwise(chain)))
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .axes import axis_vector, detect_rest_axes, frame_to_body, guess_metres_per_unit
-from .clip import MotionClip, MotionFileError, SourceSkeleton
+from .axes import guess_metres_per_unit, skeleton_axes
+from .clip import MotionClip, MotionFileError, SourceSkeleton, read_motion_bytes
 from .roles import find_roles
 from .rotations import euler_to_matrix
 
@@ -152,10 +152,7 @@ def read_bvh(path: str | os.PathLike, *, up: str | None = None, forward: str | N
     """Reads a BVH file into a ``MotionClip``. ``up``/``forward`` ("+Y", "-Z", ...) override the
     axes detected from the rest skeleton; ``metres_per_unit`` overrides the unit guess."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise MotionFileError(f"{path}: cannot be read: {exc}") from None
+    data = read_motion_bytes(path)
     text, decoded = _bvh_text(path, data)
     lines = text.splitlines()
     motion_at = next((i for i, ln in enumerate(lines) if ln.strip().upper() == "MOTION"), None)
@@ -257,14 +254,7 @@ def read_bvh(path: str | os.PathLike, *, up: str | None = None, forward: str | N
     end_sites = {i: j.end_site for i, j in enumerate(joints) if j.end_site is not None}
     skeleton = SourceSkeleton(names, parents, offsets, end_sites, naming="bvh")
     rest = skeleton.rest_positions()
-    up_v, fwd_v, how = detect_rest_axes(names, rest, "bvh")
-    if up is not None or forward is not None:
-        up_v = axis_vector(up) if up is not None else up_v
-        fwd_v = axis_vector(forward) if forward is not None else np.cross(np.cross(up_v, fwd_v), up_v)
-        how = "given"
-    if abs(up_v @ fwd_v) > 1e-6 or np.linalg.norm(fwd_v) < 1e-9:
-        raise MotionFileError(f"{path}: up {up_v} and forward {fwd_v} axes must be perpendicular")
-    C = frame_to_body(up_v, fwd_v)
+    up_v, fwd_v, how, C = skeleton_axes(path, names, rest, up, forward)
     unit = metres_per_unit or guess_metres_per_unit(rest, find_roles(names, "bvh"), up_v)
     if decoded != "utf-8":
         notes.append(f"the file is not UTF-8: read as {decoded} (joint names with other characters may "

@@ -3,12 +3,21 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
 
 class MotionFileError(ValueError):
     """A motion file that cannot be read: the message names the file (and the line, for text files)."""
+
+
+def read_motion_bytes(path: Path) -> bytes:
+    """The bytes of a motion file; ``MotionFileError`` naming it when it cannot be read."""
+    try:
+        return Path(path).read_bytes()
+    except OSError as exc:
+        raise MotionFileError(f"{path}: cannot be read: {exc}") from None
 
 
 @dataclass(frozen=True)

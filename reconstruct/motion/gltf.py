@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .axes import axis_vector, detect_rest_axes, frame_to_body
-from .clip import MotionClip, MotionFileError, SourceSkeleton
+from .axes import skeleton_axes
+from .clip import MotionClip, MotionFileError, SourceSkeleton, read_motion_bytes
 from .rotations import quat_to_matrix, slerp
 
 _COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
@@ -159,10 +159,7 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     ``up``/``forward`` override the axes detected from the rest skeleton (glTF's own are Y up, the
     model facing +Z); ``metres_per_unit`` overrides glTF's metres."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise MotionFileError(f"{path}: cannot be read: {exc}") from None
+    data = read_motion_bytes(path)
     doc, binary = _container(path, data)
     nodes = doc.get("nodes") or []
     skins = doc.get("skins") or []
@@ -298,14 +295,7 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
         notes.append(f"translations of {len(moved)} non-root joints ignored: bone lengths are the avatar's")
 
     skeleton = SourceSkeleton(names, parents, offsets, {}, naming="bvh")
-    up_v, fwd_v, how = detect_rest_axes(names, skeleton.rest_positions(), "bvh")
-    if up is not None or forward is not None:
-        up_v = axis_vector(up) if up is not None else up_v
-        fwd_v = axis_vector(forward) if forward is not None else np.cross(np.cross(up_v, fwd_v), up_v)
-        how = "given"
-    if abs(up_v @ fwd_v) > 1e-6 or np.linalg.norm(fwd_v) < 1e-9:
-        raise MotionFileError(f"{path}: up {up_v} and forward {fwd_v} axes must be perpendicular")
-    C = frame_to_body(up_v, fwd_v)
+    _, _, how, C = skeleton_axes(path, names, skeleton.rest_positions(), up, forward)
     unit = float(metres_per_unit or 1.0)
     notes.append(f"glTF: {J} joints, {T} frames at {fps:g} fps; axes {how}")
     return MotionClip(skeleton, local_out, root, fps, C, C, unit, str(path), "gltf", tuple(notes))
