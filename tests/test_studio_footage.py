@@ -1,5 +1,5 @@
 """Your own photo from the window: the footage panel prepares it (mediapipe in its environment),
-shows the report and its picture, and "Train on it" stops the running training (checkpoint saved,
+shows its steps in a progress bar, the report and its picture, and "Train on it" stops the running training (checkpoint saved,
 lock released) and trains on the prepared scene in a run folder of its own; a missing file is a
 message in the panel and nothing changes."""
 
@@ -43,6 +43,15 @@ SCRIPT = textwrap.dedent("""
             result["started"] = fc.prepare()
             result["first_scene"] = app.scene.name
             st["phase"] = 1
+        elif p == 1 and fc.busy:
+            step = fc.state.current_step()
+            if step is not None:
+                stages = result.setdefault("stages", [])
+                if step[0] not in stages:
+                    stages.append(step[0])
+                if step[0] == "keypoints" and "bar_shot" not in result:
+                    result["bar_shot"] = True
+                    app.request_screenshot(out + "_progress.png")
         elif p == 1 and not fc.busy:
             result["scene_folder"] = fc.state.scene_folder
             result["message"] = fc.state.message
@@ -89,6 +98,9 @@ def test_prepare_a_photo_and_train_on_it_from_the_window(tmp_path):
     r = json.loads(Path(out + ".json").read_text())
     assert r["rc"] == 0 and r["missing_started"] is False and "no such file" in r["missing_message"], r
     assert r["started"] and r["scene_folder"], (r["message"], r)
+    # the bar followed prepare's steps (the fit's at least; the detector's may pass within a frame)
+    assert {"keypoints", "silhouette"} <= set(r.get("stages", [])), r.get("stages")
+    assert Path(out + "_progress.png").is_file()
     assert Path(r["report_image"]).is_file() and r["report_text"]
     assert r["phase"] == 2 and r["second_steps"] >= 2 and r["val_kind"] == "training-view fit", r
     # the first run was saved and its lock released; the second trains in its own run folder

@@ -43,7 +43,17 @@ class FootageState:
     report_image: str | None = None  # SCENE/prepare_report.png
     message: str | None = None  # the last error, one line
     log: list[str] = field(default_factory=list)
+    # (stage, done, total) of the step prepare is in, as it reports it (None: not known yet)
+    step: tuple[str, int, int] | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def set_step(self, stage: str, done: int, total: int) -> None:
+        with self._lock:
+            self.step = (str(stage), int(done), int(total))
+
+    def current_step(self) -> tuple[str, int, int] | None:
+        with self._lock:
+            return self.step
 
     def add_log(self, line: str) -> None:
         with self._lock:
@@ -90,7 +100,7 @@ class FootageController:
             st.message = f"{path}: no such file or folder ({INPUT_HINT} expected)"
             return False
         out = free_folder(Path(self.scenes_root) / (path.stem or "footage"))
-        st.message = st.report_text = st.report_image = st.scene_folder = None
+        st.message = st.report_text = st.report_image = st.scene_folder = st.step = None
         st.log.clear()
         st.add_log(f"preparing {path} into {out}")
 
@@ -100,7 +110,7 @@ class FootageController:
             Path(self.scenes_root).mkdir(parents=True, exist_ok=True)
             extra = {} if self.fit_config is None else {"fit_config": self.fit_config}
             folder, report = prepare_video(path, out, detector=MediapipeDetector(), person=person or None,
-                                           log=st.add_log, **extra)
+                                           log=st.add_log, progress=st.set_step, **extra)
             return folder, format_report(report)
 
         self.prepare_job = BackgroundJob(work, name="prepare")

@@ -10,6 +10,10 @@ from imgui_bundle import imgui
 from .common import error_text, wrapped_hint
 from .context import PanelContext
 
+# what the bar says for each of prepare's steps (``prepare_video``'s progress stages)
+STAGE_WORDS = {"people": "finding people", "poses": "detecting poses", "masks": "refining masks",
+               "keypoints": "fitting to keypoints", "silhouette": "fitting to the silhouette"}
+
 
 def draw(ui: PanelContext) -> None:
     fc = ui.footage
@@ -36,8 +40,13 @@ def draw(ui: PanelContext) -> None:
     imgui.end_disabled()
     imgui.end_disabled()
     if fc.busy:
-        phase = (time.perf_counter() * 0.5) % 1.0  # prepare has no step count: an animated bar
-        imgui.progress_bar(-phase, imgui.ImVec2(-1, 0), "preparing..." if fc.prepare_job else "switching...")
+        step = st.current_step() if fc.prepare_job else None
+        if step is not None and step[2] > 0:
+            stage, done, total = step
+            imgui.progress_bar(done / total, imgui.ImVec2(-1, 0), f"{STAGE_WORDS.get(stage, stage)} {done}/{total}")
+        else:  # no step count yet (reading the input), or switching: an animated bar
+            phase = (time.perf_counter() * 0.5) % 1.0
+            imgui.progress_bar(-phase, imgui.ImVec2(-1, 0), "preparing..." if fc.prepare_job else "switching...")
     for line in st.log_lines()[-5:]:
         imgui.text_disabled(line[-70:])
     if st.report_text:

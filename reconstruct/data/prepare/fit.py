@@ -441,13 +441,15 @@ def render_alpha(weights: torch.Tensor, rest: torch.Tensor, transforms: torch.Te
 
 
 def fit_poses(body: BodyModel, det: Detections, config: FitConfig = FitConfig(), *, shape: ShapeBasis | None = None,
-              guess: CameraGuess | None = None, log=None) -> FitResult:
+              guess: CameraGuess | None = None, log=None, progress=None) -> FitResult:
     """Fit poses and camera (and, with ``shape``, Anny's phenotype) to the detections of the frames
-    where a person was found. ``body`` is the body at ``shape``'s base phenotype."""
+    where a person was found. ``body`` is the body at ``shape``'s base phenotype. ``progress``, if
+    given, is called as progress(stage, done, total) after each step of the keypoint fit
+    ("keypoints") and of the silhouette fit ("silhouette")."""
     threads = torch.get_num_threads()
     torch.set_num_threads(max(1, config.threads))
     try:
-        return _fit(body, det, config, shape if config.fit_shape else None, guess, log)
+        return _fit(body, det, config, shape if config.fit_shape else None, guess, log, progress)
     finally:
         torch.set_num_threads(threads)
 
@@ -457,7 +459,7 @@ def _up_axis(orient: torch.Tensor) -> torch.Tensor:
 
 
 def _fit(body: BodyModel, det: Detections, config: FitConfig, shape: ShapeBasis | None, guess: CameraGuess | None,
-         log) -> FitResult:
+         log, progress=None) -> FitResult:
     t_start = time.perf_counter()
     torch.manual_seed(config.seed)
     P = _Problem(body, det, config, shape, guess)
@@ -515,6 +517,8 @@ def _fit(body: BodyModel, det: Detections, config: FitConfig, shape: ShapeBasis 
     opt = torch.optim.Adam(groups)
     # stage 1: global motion only, then everything, on keypoints
     for it in range(config.keypoint_iters):
+        if progress is not None and it % 10 == 0:
+            progress("keypoints", it, config.keypoint_iters)
         opt.zero_grad()
         warm = it < config.keypoint_iters // 5
         kin_rest, kp_rest = P.rest()
@@ -542,6 +546,8 @@ def _fit(body: BodyModel, det: Detections, config: FitConfig, shape: ShapeBasis 
         sw_weights = samples.weights(body)
         sigma = 0.5 * samples.spacing
         for it in range(config.silhouette_iters):
+            if progress is not None:
+                progress("silhouette", it, config.silhouette_iters)
             opt.zero_grad()
             focal = P.focal.detach()  # the silhouette must not trade the body's size for the focal length
             kin_rest, kp_rest = P.rest()

@@ -92,14 +92,17 @@ def _log(msg: str) -> None:
 
 class _ProgressLog:
     """A detector's ``progress`` as log lines: each stage's first frame, then at most one line per
-    ``every`` seconds, and its last frame ('detecting poses: 30/60 frames, 12 s')."""
+    ``every`` seconds, and its last frame ('detecting poses: 30/60 frames, 12 s'); also passed on
+    to ``progress`` (stage, done, total) when one is given (the studio's bar)."""
 
     WORDS = {"people": "finding people", "poses": "detecting poses", "masks": "refining masks"}
 
-    def __init__(self, log, every: float = 5.0) -> None:
-        self.log, self.every, self.last, self.start = log, every, {}, {}
+    def __init__(self, log, every: float = 5.0, progress=None) -> None:
+        self.log, self.every, self.last, self.start, self.progress = log, every, {}, {}, progress
 
     def __call__(self, stage: str, done: int, total: int) -> None:
+        if self.progress is not None:
+            self.progress(stage, done, total)
         now = time.perf_counter()
         first = stage not in self.start
         if first:
@@ -152,13 +155,15 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
                   fit_config: FitConfig = FitConfig(), max_size: int | None = 512, every: int = 1,
                   max_frames: int | None = None, phenotype: dict | None = None, person: int | None = None,
                   crop: bool = True, fill_holes: bool = True, report_image: bool = True, turn: bool = True,
-                  log=_log) -> tuple[Path, dict]:
+                  log=_log, progress=None) -> tuple[Path, dict]:
     """Make a scene folder ``out`` from a video, an image or a folder of images; returns (folder, report).
-    Nothing is written unless every step succeeds."""
+    Nothing is written unless every step succeeds. ``progress``, if given, is called as
+    progress(stage, done, total) through the long steps: the detector's stages ("people", "poses",
+    "masks", where it reports them) and the fit's ("keypoints", "silhouette")."""
     t0 = time.perf_counter()
     video_path = Path(video_path)
     out = check_output_folder(out)
-    detector.progress = _ProgressLog(log)
+    detector.progress = _ProgressLog(log, progress=progress)
     # two passes over the input: a small preview to find the person, then the frames at the file's own
     # resolution, cropped as they are decoded (a long 4K clip is never held in memory whole)
     preview, names = read_input(video_path, max_side=PEOPLE_SIZE, every=every, max_frames=max_frames)
@@ -246,7 +251,7 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
     guess = CameraGuess(float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
     log(f"fitting the body's {'shape and ' if shape else ''}pose to {kept.num_frames} "
         f"{'frame' if kept.num_frames == 1 else 'frames'} ...")
-    fit = fit_poses(body, kept, fit_config, shape=shape, guess=guess, log=log)
+    fit = fit_poses(body, kept, fit_config, shape=shape, guess=guess, log=log, progress=progress)
     spec = BodySpec.anny(fit.phenotype, 5.0) if fit.phenotype else base_spec
     final_body = spec.build()
     fit.iou, fit.fit_masks = measure_fit(final_body, fit.poses, fit.camera, kept)
