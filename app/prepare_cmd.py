@@ -48,6 +48,35 @@ def add_prepare_parser(sub) -> None:
     s.set_defaults(func=run_prepare)
 
 
+class StageBars:
+    """``prepare``'s progress on the command line: a tqdm bar per step (finding people, detecting
+    poses, refining masks, fitting to keypoints, to the silhouette), on stderr."""
+
+    WORDS = {"people": "finding people", "poses": "detecting poses", "masks": "refining masks",
+             "keypoints": "fitting to keypoints", "silhouette": "fitting to the silhouette"}
+
+    def __init__(self) -> None:
+        self.stage, self.bar = None, None
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        from tqdm import tqdm
+
+        if stage != self.stage or self.bar is None:
+            self.close()
+            unit = "step" if stage in ("keypoints", "silhouette") else "frame"
+            self.stage, self.bar = stage, tqdm(total=total, desc=self.WORDS.get(stage, stage), unit=unit,
+                                               leave=True)
+        self.bar.update(max(0, done - self.bar.n))
+        if done >= total:
+            self.close()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.update(max(0, self.bar.total - self.bar.n) if self.stage in ("keypoints", "silhouette") else 0)
+            self.bar.close()
+        self.stage, self.bar = None, None
+
+
 def run_prepare(args: argparse.Namespace) -> int:
     import json
 
@@ -72,10 +101,14 @@ def run_prepare(args: argparse.Namespace) -> int:
     detector = MediapipeDetector(args.detector_python, model_complexity=args.model_complexity,
                                  refine=not args.no_refine)
     detector.resolve()  # a missing detector is reported before the input is read
-    out, report = prepare_video(args.video, args.out, detector=detector, fit_config=FitConfig(**kw),
-                                max_size=args.size, every=args.every, max_frames=args.max_frames,
-                                person=args.person, crop=not args.no_crop, fill_holes=not args.no_fill_holes,
-                                turn=not args.no_turn, report_image=not args.no_report_image)
+    bars = StageBars()
+    try:
+        out, report = prepare_video(args.video, args.out, detector=detector, fit_config=FitConfig(**kw),
+                                    max_size=args.size, every=args.every, max_frames=args.max_frames,
+                                    person=args.person, crop=not args.no_crop, fill_holes=not args.no_fill_holes,
+                                    turn=not args.no_turn, report_image=not args.no_report_image, progress=bars)
+    finally:
+        bars.close()
     print(json.dumps(report, indent=1) if args.json else format_report(report))
     print(f"wrote {out}")
     return 0

@@ -240,6 +240,24 @@ def test_the_detector_reports_progress_frame_by_frame_with_mediapipe(synth, tmp_
         MediapipeDetector(python, timeout_s=0.05).detect(frames)
 
 
+def test_the_command_lines_bars_follow_prepares_steps(capsys):
+    """``prepare`` on the command line: a tqdm bar per step, each closed full when its step ends
+    (the fit's steps report every 10th step: the last is filled in when the next step starts)."""
+    from app.prepare_cmd import StageBars
+
+    bars = StageBars()
+    for k in range(4):
+        bars("poses", k, 3)
+    for k in range(0, 300, 10):
+        bars("keypoints", k, 300)
+    bars("silhouette", 0, 60)
+    assert bars.stage == "silhouette"
+    bars.close()
+    err = capsys.readouterr().err
+    assert "detecting poses: 100%" in err and "3/3" in err
+    assert "fitting to keypoints: 100%" in err and "300/300" in err and bars.stage is None
+
+
 def test_window_search_maps_a_detection_back_onto_the_frame():
     """``detect_one`` on a stand-in detector that sees a person (a bright block) only in square
     images: nobody in the wide frame, found in a window, and its landmarks and segmentation put back

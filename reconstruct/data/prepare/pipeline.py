@@ -91,9 +91,10 @@ def _log(msg: str) -> None:
 
 
 class _ProgressLog:
-    """A detector's ``progress`` as log lines: each stage's first frame, then at most one line per
-    ``every`` seconds, and its last frame ('detecting poses: 30/60 frames, 12 s'); also passed on
-    to ``progress`` (stage, done, total) when one is given (the studio's bar)."""
+    """A detector's ``progress``: passed on to ``progress`` (stage, done, total) when one is given
+    (the studio's bar, the command line's tqdm bars); else as log lines, each stage's first frame,
+    then at most one line per ``every`` seconds, and its last frame ('detecting poses: 30/60
+    frames, 12 s')."""
 
     WORDS = {"people": "finding people", "poses": "detecting poses", "masks": "refining masks"}
 
@@ -103,6 +104,7 @@ class _ProgressLog:
     def __call__(self, stage: str, done: int, total: int) -> None:
         if self.progress is not None:
             self.progress(stage, done, total)
+            return
         now = time.perf_counter()
         first = stage not in self.start
         if first:
