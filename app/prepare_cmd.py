@@ -52,19 +52,18 @@ class StageBars:
     """``prepare``'s progress on the command line: a tqdm bar per step (finding people, detecting
     poses, refining masks, fitting to keypoints, to the silhouette), on stderr."""
 
-    WORDS = {"people": "finding people", "poses": "detecting poses", "masks": "refining masks",
-             "keypoints": "fitting to keypoints", "silhouette": "fitting to the silhouette"}
-
     def __init__(self) -> None:
         self.stage, self.bar = None, None
 
     def __call__(self, stage: str, done: int, total: int) -> None:
         from tqdm import tqdm
 
+        from reconstruct.data.prepare.pipeline import STAGE_WORDS
+
         if stage != self.stage or self.bar is None:
             self.close()
             unit = "step" if stage in ("keypoints", "silhouette") else "frame"
-            self.stage, self.bar = stage, tqdm(total=total, desc=self.WORDS.get(stage, stage), unit=unit,
+            self.stage, self.bar = stage, tqdm(total=total, desc=STAGE_WORDS.get(stage, stage), unit=unit,
                                                leave=True)
         self.bar.update(max(0, done - self.bar.n))
         if done >= total:

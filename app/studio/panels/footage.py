@@ -10,10 +10,6 @@ from imgui_bundle import imgui
 from .common import error_text, wrapped_hint
 from .context import PanelContext
 
-# what the bar says for each of prepare's steps (``prepare_video``'s progress stages)
-STAGE_WORDS = {"people": "finding people", "poses": "detecting poses", "masks": "refining masks",
-               "keypoints": "fitting to keypoints", "silhouette": "fitting to the silhouette"}
-
 
 def draw(ui: PanelContext) -> None:
     fc = ui.footage
@@ -42,6 +38,8 @@ def draw(ui: PanelContext) -> None:
     if fc.busy:
         step = st.current_step() if fc.prepare_job else None
         if step is not None and step[2] > 0:
+            from reconstruct.data.prepare.pipeline import STAGE_WORDS
+
             stage, done, total = step
             imgui.progress_bar(done / total, imgui.ImVec2(-1, 0), f"{STAGE_WORDS.get(stage, stage)} {done}/{total}")
         else:  # no step count yet (reading the input), or switching: an animated bar

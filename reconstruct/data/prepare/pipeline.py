@@ -90,13 +90,16 @@ def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+# what each of prepare's progress stages is called where a person reads it (log lines, bars)
+STAGE_WORDS = {"people": "finding people", "poses": "detecting poses", "masks": "refining masks",
+               "keypoints": "fitting to keypoints", "silhouette": "fitting to the silhouette"}
+
+
 class _ProgressLog:
     """A detector's ``progress``: passed on to ``progress`` (stage, done, total) when one is given
     (the studio's bar, the command line's tqdm bars); else as log lines, each stage's first frame,
     then at most one line per ``every`` seconds, and its last frame ('detecting poses: 30/60
     frames, 12 s')."""
-
-    WORDS = {"people": "finding people", "poses": "detecting poses", "masks": "refining masks"}
 
     def __init__(self, log, every: float = 5.0, progress=None) -> None:
         self.log, self.every, self.last, self.start, self.progress = log, every, {}, {}, progress
@@ -111,7 +114,7 @@ class _ProgressLog:
             self.start[stage] = now
         if first or done >= total or now - self.last.get(stage, 0.0) >= self.every:
             self.last[stage] = now
-            self.log(f"{self.WORDS.get(stage, stage)}: {done}/{total} frames, {now - self.start[stage]:.0f} s")
+            self.log(f"{STAGE_WORDS.get(stage, stage)}: {done}/{total} frames, {now - self.start[stage]:.0f} s")
 
 
 def _find_person(video: Video, names: list[str], detector: PersonDetector, person: int | None, source: str,
