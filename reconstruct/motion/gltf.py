@@ -205,9 +205,10 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     while k is not None:
         chain.append(k)
         k = parent.get(k)
+    chain_rest = {k: _rest_trs(nodes[k]) for k in chain}
     above = np.eye(4)
     for k in chain:
-        above = _affine(*_rest_trs(nodes[k])) @ above
+        above = _affine(*chain_rest[k]) @ above
     world0 = np.zeros((J, 4, 4))
     for k in range(J):
         local = _affine(*rest[k])
@@ -221,7 +222,8 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
         notes.append(f"{len(anims)} animations: the first ({anim.get('name', 'unnamed')!r}) is used")
     bufs = _Buffers(path, doc, binary)
     samplers = anim.get("samplers", [])
-    tracks, key_times, interpolations = {}, [], set()
+    # (joint index, path) -> keys, values, interpolation; the same for the nodes above, by node
+    tracks, above_tracks, key_times, interpolations, ignored = {}, {}, [], set(), set()
     for ch in anim.get("channels", []):
         target = ch.get("target", {})
         node, what = target.get("node"), target.get("path")
@@ -232,7 +234,7 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
         except (KeyError, IndexError, TypeError):
             raise MotionFileError(f"{path}: an animation channel names no sampler") from None
         if what in ("scale", "weights"):
-            notes.append(f"animated {what} ignored")
+            ignored.add(what)
             continue
         if what not in ("rotation", "translation"):
             continue
@@ -247,10 +249,14 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
             who = names[index[node]] if node in index else nodes[node].get("name", f"node {node}")
             raise MotionFileError(f"{path}: animation channel for {who!r} {what}: {len(keys)} key "
                                   f"times and {values.shape[0]} values of width {values.shape[1]}")
-        tracks[(index[node], what) if node in index else ("above", node, what)] = (keys, values, interp)
+        if node in index:
+            tracks[(index[node], what)] = (keys, values, interp)
+        else:
+            above_tracks[(node, what)] = (keys, values, interp)
         key_times.append(keys)
         interpolations.add(interp)
-    if not any(len(key) == 2 for key in tracks):
+    notes.extend(f"animated {what} ignored" for what in sorted(ignored))
+    if not tracks:
         raise MotionFileError(f"{path}: the first animation moves none of the skeleton's joints")
     if "CUBICSPLINE" in interpolations:
         notes.append("cubic-spline keys resampled linearly between their values")
@@ -262,23 +268,25 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     T = max(1, int(round((t1 - t0) * fps)) + 1)
     times = t0 + np.arange(T) / fps
 
-    def animated(key, k, what, rest_value):
-        """(T, 3, 3) rotations or (T, 3) translations of a channel, its rest value where none."""
-        if key not in tracks:
+    def animated(channels, key, rest_value):
+        """(T, 3, 3) rotations or (T, 3) translations of ``channels[key]`` (key: (node, path)), its
+        rest value where the animation has none."""
+        if key not in channels:
             return np.broadcast_to(rest_value, (T,) + np.shape(rest_value))
-        keys, values, interp = tracks[key]
-        out = _sample(times, keys, values, interp, rotation=what == "rotation")
-        return quat_to_matrix(out) if what == "rotation" else out
+        keys, values, interp = channels[key]
+        rotation = key[1] == "rotation"
+        out = _sample(times, keys, values, interp, rotation=rotation)
+        return quat_to_matrix(out) if rotation else out
 
     # the nodes above the skeleton frame by frame (fixed unless the animation moves them)
     above_t = np.broadcast_to(np.eye(4), (T, 4, 4)).copy()
     for k in chain:
-        t_rest, R_rest, s_rest = _rest_trs(nodes[k])
+        t_rest, R_rest, s_rest = chain_rest[k]
         M = np.broadcast_to(np.eye(4), (T, 4, 4)).copy()
-        M[:, :3, :3] = animated(("above", k, "rotation"), k, "rotation", R_rest) * s_rest[None, None, :]
-        M[:, :3, 3] = animated(("above", k, "translation"), k, "translation", t_rest)
+        M[:, :3, :3] = animated(above_tracks, (k, "rotation"), R_rest) * s_rest[None, None, :]
+        M[:, :3, 3] = animated(above_tracks, (k, "translation"), t_rest)
         above_t = M @ above_t
-    if any(key[0] == "above" for key in tracks if len(key) == 3):
+    if above_tracks:
         notes.append("the nodes above the skeleton move: their motion is the root's")
     above_rot_t = above_t[:, :3, :3] / np.linalg.norm(above_t[:, :3, :3], axis=1, keepdims=True)
 
@@ -286,11 +294,11 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     # (the root's parent: the nodes above it, as they stand in each frame)
     local_out = np.zeros((T, J, 3, 3))
     for k in range(J):
-        L = animated((k, "rotation"), k, "rotation", rest[k][1])
+        L = animated(tracks, (k, "rotation"), rest[k][1])
         local_out[:, k] = (above_rot_t if parents[k] < 0 else rot0[parents[k]]) @ L @ rot0[k].T
-    tr = animated((0, "translation"), 0, "translation", rest[0][0])
+    tr = animated(tracks, (0, "translation"), rest[0][0])
     root = np.einsum("tij,tj->ti", above_t[:, :3, :3], tr) + above_t[:, :3, 3]
-    moved = sorted({names[key[0]] for key in tracks if len(key) == 2 and key[1] == "translation" and key[0] != 0})
+    moved = sorted({names[k] for k, what in tracks if what == "translation" and k != 0})
     if moved:
         notes.append(f"translations of {len(moved)} non-root joints ignored: bone lengths are the avatar's")
 
