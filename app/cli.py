@@ -346,7 +346,7 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument("--novel", metavar="NAME", help="a novel pose sequence: walk (a walk cycle) or arms_up, "
                                                       "seen from the video's first training camera")
     what.add_argument("--motion", metavar="FILE", type=Path,
-                      help="a motion file (.bvh, .glb/.gltf, SMPL/SMPL-H/SMPL-X .npz) retargeted onto the avatar, "
+                      help="a motion file (.bvh, .fbx, .glb/.gltf, SMPL/SMPL-H/SMPL-X .npz) retargeted onto the avatar, "
                            "starting where the video's first frame stands (docs/motion.md)")
     what.add_argument("--canonical", action="store_true", help="--ply: the Gaussians in the canonical space")
     out = s.add_argument_group("output (one of)")

@@ -526,7 +526,7 @@ def export_novel(avatar, out_path, name: str = "walk", *, frames: int = 30, size
 def export_motion(avatar, out_path, motion, *, fps: float | None = None, start: float | None = None,
                   end: float | None = None, loop: bool = False, size: int | None = 512, camera=None, mode="rgb",
                   background=(0, 0, 0), progress: bool = True) -> Path:
-    """A motion file (``.bvh``, ``.glb`` / ``.gltf``, SMPL-family ``.npz``; or ``MotionPoses`` already retargeted)
+    """A motion file (``.bvh``, ``.fbx``, ``.glb`` / ``.gltf``, SMPL-family ``.npz``; or ``MotionPoses`` already retargeted)
     performed by the avatar, from the video's first training camera; see ``motion_poses``."""
     mode = _check_mode(mode)
     check_destination(out_path, suffixes=VIDEO_SUFFIXES)

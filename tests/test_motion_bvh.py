@@ -237,8 +237,8 @@ def test_a_binary_file_named_bvh_is_refused(tmp_path):
 
 
 def test_unknown_suffix_and_pickles_refused(tmp_path):
-    with pytest.raises(MotionFileError, match="unsupported motion file type '.fbx'"):
-        load_motion(_write(tmp_path, "x", "a.fbx"))
+    with pytest.raises(MotionFileError, match="unsupported motion file type '.c3d'"):
+        load_motion(_write(tmp_path, "x", "a.c3d"))
     with pytest.raises(MotionFileError, match="pickle files are refused"):
         load_motion(_write(tmp_path, "x", "a.pkl"))
     with pytest.raises(MotionFileError, match="no such motion file"):

@@ -56,7 +56,7 @@ class MotionPanelState:
 
 def load_motion_sequence(path, body, scene, *, key: str, loop: bool = False,
                          fps: float | None = None) -> LoadedMotion:
-    """Read ``path`` (.bvh / .glb / .gltf / SMPL-family .npz) and retarget it onto ``body``, placed on ``scene``'s
+    """Read ``path`` (.bvh / .fbx / .glb / .gltf / SMPL-family .npz) and retarget it onto ``body``, placed on ``scene``'s
     first frame with the floor of its poses, at ``fps`` (default the scene's). Raises
     ``MotionFileError`` / ``ValueError`` naming the file."""
     from app.export import read_motion, retarget_motion
@@ -64,7 +64,7 @@ def load_motion_sequence(path, body, scene, *, key: str, loop: bool = False,
     t0 = time.perf_counter()
     path = str(path).strip()
     if not path:
-        raise ValueError("no motion file given: type the path of a .bvh, .glb, .gltf or .npz file")
+        raise ValueError("no motion file given: type the path of a .bvh, .fbx, .glb, .gltf or .npz file")
     clip = read_motion(Path(path).expanduser())
     m = retarget_motion(clip, body, scene, fps=fps, loop=loop)
     return LoadedMotion(key, str(m.path), tuple(m.poses), m.fps, m.source_frames, m.source_fps, m.notes, m.dropped,

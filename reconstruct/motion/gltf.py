@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .axes import skeleton_axes
-from .clip import MotionClip, MotionFileError, SourceSkeleton, read_motion_bytes
+from .clip import MotionClip, MotionFileError, read_motion_bytes
+from .rig_clip import rig_clip, varies
 from .rotations import quat_to_matrix, slerp
 
 _COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
@@ -213,8 +213,6 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     for k in range(J):
         local = _affine(*rest[k])
         world0[k] = (above if parents[k] < 0 else world0[parents[k]]) @ local
-    rot0 = np.stack([M[:3, :3] / np.linalg.norm(M[:3, :3], axis=0) for M in world0])
-    offsets = np.stack([world0[0][:3, 3]] + [world0[parents[k]][:3, :3] @ rest[k][0] for k in range(1, J)])
 
     # ----- the animation ------------------------------------------------------------------
     anim = anims[0]
@@ -233,9 +231,8 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
             s = samplers[ch["sampler"]]
         except (KeyError, IndexError, TypeError):
             raise MotionFileError(f"{path}: an animation channel names no sampler") from None
-        if what in ("scale", "weights"):
+        if what == "weights" or what == "scale" and varies(bufs.accessor(s["output"])):
             ignored.add(what)
-            continue
         if what not in ("rotation", "translation"):
             continue
         keys = bufs.accessor(s["input"])[:, 0]
@@ -286,24 +283,13 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
         M[:, :3, :3] = animated(above_tracks, (k, "rotation"), R_rest) * s_rest[None, None, :]
         M[:, :3, 3] = animated(above_tracks, (k, "translation"), t_rest)
         above_t = M @ above_t
-    if above_tracks:
+    if any(varies(values) for _, values, _ in above_tracks.values()):
         notes.append("the nodes above the skeleton move: their motion is the root's")
-    above_rot_t = above_t[:, :3, :3] / np.linalg.norm(above_t[:, :3, :3], axis=1, keepdims=True)
-
-    # the clip's local rotations, relative to world-aligned rest frames: R0_parent L(t) R0_joint^T
-    # (the root's parent: the nodes above it, as they stand in each frame)
-    local_out = np.zeros((T, J, 3, 3))
-    for k in range(J):
-        L = animated(tracks, (k, "rotation"), rest[k][1])
-        local_out[:, k] = (above_rot_t if parents[k] < 0 else rot0[parents[k]]) @ L @ rot0[k].T
+    L = np.stack([animated(tracks, (k, "rotation"), rest[k][1]) for k in range(J)], 1)
     tr = animated(tracks, (0, "translation"), rest[0][0])
-    root = np.einsum("tij,tj->ti", above_t[:, :3, :3], tr) + above_t[:, :3, 3]
-    moved = sorted({names[k] for k, what in tracks if what == "translation" and k != 0})
+    moved = sorted({names[k] for (k, what), (_, values, _) in tracks.items()
+                    if what == "translation" and k != 0 and varies(values)})
     if moved:
         notes.append(f"translations of {len(moved)} non-root joints ignored: bone lengths are the avatar's")
-
-    skeleton = SourceSkeleton(names, parents, offsets, {}, naming="bvh")
-    _, _, how, C = skeleton_axes(path, names, skeleton.rest_positions(), up, forward)
-    unit = float(metres_per_unit or 1.0)
-    notes.append(f"glTF: {J} joints, {T} frames at {fps:g} fps; axes {how}")
-    return MotionClip(skeleton, local_out, root, fps, C, C, unit, str(path), "gltf", tuple(notes))
+    return rig_clip(path, names, parents, world0, L, above_t, tr, fps, up=up, forward=forward,
+                    metres_per_unit=metres_per_unit or 1.0, fmt="glTF", notes=notes)

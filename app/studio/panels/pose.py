@@ -20,7 +20,7 @@ def _label(ui: PanelContext, source: str) -> str:
 def draw_motion_file(ui: PanelContext) -> None:
     """The motion file: path, loop, Open; what the retargeting said; the last error."""
     m = ui.view.motion
-    imgui.separator_text("motion file (.bvh, .glb, .npz)")
+    imgui.separator_text("motion file (.bvh, .fbx, .glb, .npz)")
     ch, path = imgui.input_text("path##motion", m.path)
     ui.mark("motion_path")
     if ch:
