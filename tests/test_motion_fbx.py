@@ -162,6 +162,37 @@ def test_mixamo_joint_names_retarget_like_plain_ones(anny_body, tmp_path):
         np.testing.assert_allclose(pb.transl, pa.transl, atol=1e-9)
 
 
+def test_an_armature_written_as_a_joint_and_a_root_bone_are_read_as_the_armature(tmp_path):
+    """Blender writes its armature as a LimbNode or Root when asked to, and game rigs put a 'root'
+    bone above the pelvis to carry root motion: the chain of single-child joints above the first
+    joint that branches goes above the skeleton, its motion carried into the root's. The rig with
+    its Armature as a LimbNode reads to the rig with it as a Null; a root bone's walk adds to the hips'."""
+    def rig(kind, root_bone=False):
+        models, _ = joint_orient_rig()
+        models[0]["kind"] = kind
+        if root_bone:  # a 'root' bone between the armature and the hips carries the walk forward
+            walk = np.stack([np.zeros(FRAMES), 5.0 * np.arange(FRAMES), np.zeros(FRAMES)], 1)
+            models.insert(1, {"name": "root", "kind": "LimbNode", "parent": 0, "curves": {"Lcl Translation": walk}})
+            for m in models[2:]:
+                m["parent"] = m["parent"] + 1 if m["parent"] else 1
+        p = tmp_path / f"{kind}{root_bone}.fbx"
+        p.write_bytes(fbx_bytes(scene(models, FRAMES, FPS, up_axis=2)))
+        return load_motion(p)
+
+    null, limb = rig("Null"), rig("LimbNode")
+    assert limb.skeleton.names == null.skeleton.names and limb.skeleton.names[0] == "Hips"
+    assert "'Armature' above 'Hips' read as the armature: its motion is the root's" in limb.notes
+    np.testing.assert_allclose(limb.local_rotations, null.local_rotations, atol=1e-12)
+    np.testing.assert_allclose(limb.root_positions, null.root_positions, atol=1e-9)
+    game = rig("LimbNode", root_bone=True)
+    assert game.skeleton.names == null.skeleton.names
+    assert "'Armature', 'root' above 'Hips' read as the armature: their motion is the root's" in game.notes
+    np.testing.assert_allclose(game.local_rotations, null.local_rotations, atol=1e-12)
+    # the root bone's +Y 5 cm a frame in the armature, turned by its 90 degrees about X and scaled by 2
+    step = np.stack([np.zeros(FRAMES), np.zeros(FRAMES), 10.0 * np.arange(FRAMES)], 1)
+    np.testing.assert_allclose(game.root_positions - null.root_positions, step, atol=1e-9)
+
+
 @pytest.mark.parametrize("order", ["XYZ", "XZY", "YZX", "YXZ", "ZXY", "ZYX"])
 def test_euler_orders_match_scipys_extrinsic_rotations(order):
     from scipy.spatial.transform import Rotation

@@ -35,13 +35,14 @@ def _xyzw(R: np.ndarray) -> np.ndarray:
 
 
 def write_glb(path, rots: dict, roots: list, *, fps: float = 30.0, seed: int = 0, as_gltf: bool = False,
-              interpolation: str = "LINEAR", armature_motion: bool = False):
+              interpolation: str = "LINEAR", armature_motion: bool = False, armature_joint: bool = False):
     """The BVH test motion (``rots``: joint -> per-frame glm local quaternions, ``roots``: cm) as a
     glTF skin and animation: every joint gets a random rest rotation, and an 'Armature' node above the
     root turns it by 90 degrees about X and scales it by 0.01; the node transforms are chosen so that
     the scene's world holds the BVH skeleton in metres moving as the BVH says. With
     ``armature_motion`` the walk's translation is put on the Armature node (root motion as some
-    exporters write it) instead of the root joint."""
+    exporters write it) instead of the root joint; with ``armature_joint`` the Armature node is a joint
+    of the skin as well (an armature exported as a bone, a game rig's root bone)."""
     rng = np.random.default_rng(seed)
     T = len(roots)
     A = rotvec_to_matrix(np.array([math.pi / 2, 0.0, 0.0]))
@@ -93,7 +94,7 @@ def write_glb(path, rots: dict, roots: list, *, fps: float = 30.0, seed: int = 0
         samplers.append({"input": times, "output": add(root_tr, "VEC3"), "interpolation": "LINEAR"})
         channels.append({"sampler": len(samplers) - 1, "target": {"node": index[NAMES[0]], "path": "translation"}})
     doc = {"asset": {"version": "2.0", "generator": "test_motion_gltf"}, "scene": 0, "scenes": [{"nodes": [0]}],
-           "nodes": nodes, "skins": [{"joints": [index[n] for n in NAMES]}],
+           "nodes": nodes, "skins": [{"joints": [0] * armature_joint + [index[n] for n in NAMES]}],
            "animations": [{"name": "walk", "samplers": samplers, "channels": channels}],
            "buffers": [{"byteLength": len(blob)}], "bufferViews": views, "accessors": accessors}
     if as_gltf:
@@ -114,15 +115,19 @@ def _motion(T: int = 5, seed: int = 7):
     return rots, roots
 
 
-@pytest.mark.parametrize("kind", ["glb", "gltf with a data uri", "cubic spline", "root motion on the armature"])
+@pytest.mark.parametrize("kind", ["glb", "gltf with a data uri", "cubic spline", "root motion on the armature",
+                                  "root motion on an armature joint"])
 def test_a_glb_reads_to_the_bvh_files_clip_and_poses(anny_body, tmp_path, kind):
     rots, roots = _motion()
     bvh = load_motion(write_bvh(tmp_path / "walk.bvh", rots, roots))
     path = tmp_path / ("walk.gltf" if kind.startswith("gltf") else "walk.glb")
     clip = load_motion(write_glb(path, rots, roots, as_gltf=kind.startswith("gltf"),
                                  interpolation="CUBICSPLINE" if kind == "cubic spline" else "LINEAR",
-                                 armature_motion=kind == "root motion on the armature"))
+                                 armature_motion=kind.startswith("root motion on"),
+                                 armature_joint=kind == "root motion on an armature joint"))
     assert clip.format == "gltf" and clip.num_frames == 5 and clip.fps == pytest.approx(30.0)
+    if kind == "root motion on an armature joint":
+        assert "'Armature' above 'Hips' read as the armature: its motion is the root's" in clip.notes
     assert clip.skeleton.names == bvh.skeleton.names
     np.testing.assert_array_equal(clip.skeleton.parents, bvh.skeleton.parents)
     np.testing.assert_allclose(clip.skeleton.offsets * 100.0, bvh.skeleton.offsets, atol=1e-4)  # m vs cm

@@ -24,6 +24,23 @@ def rotation_part(M: np.ndarray) -> np.ndarray:
     return A / np.where(norms > 0, norms, 1.0)
 
 
+def first_branch(root, kids) -> tuple[object, list]:
+    """(the skeleton's working root, the joints above it): where a tree starts with a chain of
+    single-child joints that ends in a joint with two or more children (an armature exported as a
+    joint, a game rig's 'root' bone above the pelvis), that joint is the root and the chain goes
+    above it with the armature, its motion carried into the root's; a tree that never branches keeps
+    its root. ``kids(j)``: j's child joints."""
+    path = [root]
+    while len(kids(path[-1])) == 1:
+        path.append(kids(path[-1])[0])
+    return (path[-1], path[:-1]) if len(kids(path[-1])) >= 2 else (root, [])
+
+
+def wrapper_note(wrappers: list[str], root: str) -> str:
+    names = ", ".join(repr(n) for n in wrappers)
+    return f"{names} above {root!r} read as the armature: {'its' if len(wrappers) == 1 else 'their'} motion is the root's"
+
+
 def varies(values) -> bool:
     """Whether keyed values (K, ...) change along their keys by more than float32 rounding: exporters
     bake every channel of every joint, most of them constant."""
