@@ -193,6 +193,22 @@ def test_an_armature_written_as_a_joint_and_a_root_bone_are_read_as_the_armature
     np.testing.assert_allclose(game.root_positions - null.root_positions, step, atol=1e-9)
 
 
+def test_a_rest_pose_that_does_not_stand_is_noted(anny_body, tmp_path):
+    """Without a bind pose the rest is the models' own values, which Blender's exporter sets to the
+    frame it exports at: a rest with a thigh lifted and the spine bent by 60 degrees is named in the
+    retarget's notes; the standing rigs (the Maya rig, Blender's walk with its bind pose, the BVH) are not."""
+    models, _ = joint_orient_rig()
+    for m in models:
+        if m["name"] in ("LeftUpLeg", "Spine"):
+            m["props"].append(P("Lcl Rotation", "Lcl Rotation", "", "A", 60.0, 0.0, 0.0))
+    p = tmp_path / "bent.fbx"
+    p.write_bytes(fbx_bytes(scene(models, FRAMES, FPS, up_axis=2)))
+    notes = [n for n in retarget(load_motion(p), anny_body).notes if "does not stand upright" in n]
+    assert len(notes) == 1 and "left thigh" in notes[0] and "spine" in notes[0] and "right thigh" not in notes[0], notes
+    for standing in ("joint_orient.fbx", "blender_walk.fbx", "walk.bvh"):
+        assert not [n for n in retarget(load_motion(DATA / standing), anny_body).notes if "upright" in n], standing
+
+
 @pytest.mark.parametrize("order", ["XYZ", "XZY", "YZX", "YXZ", "ZXY", "ZYX"])
 def test_euler_orders_match_scipys_extrinsic_rotations(order):
     from scipy.spatial.transform import Rotation

@@ -204,6 +204,33 @@ def _placement(sk: BodySkeleton, hips: int, base_pose: BodyPose | None, floor_po
     return P, G[0] @ p[0, hips] + t[0]
 
 
+STANDING_TOLERANCE_DEG = 30.0
+
+
+def rest_stance(rest_body: np.ndarray, roles: dict[str, int]) -> list[str]:
+    """What keeps a source's rest skeleton (body axes, Z up) from standing: each thigh and shin, and
+    the hips-to-neck line, more than ``STANDING_TOLERANCE_DEG`` from vertical, e.g. "left thigh 48°".
+    The arms may be in any rest (T, A or down)."""
+    down, up = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 1.0])
+    segments = []
+    for s, side in (("l", "left"), ("r", "right")):
+        segments += [(f"{side} thigh", f"upperleg_{s}", f"lowerleg_{s}", down),
+                     (f"{side} shin", f"lowerleg_{s}", f"foot_{s}", down)]
+    segments.append(("spine", "hips", "neck" if "neck" in roles else "head", up))
+    out = []
+    for label, a, b, want in segments:
+        if a not in roles or b not in roles:
+            continue
+        d = rest_body[roles[b]] - rest_body[roles[a]]
+        n = np.linalg.norm(d)
+        if n < 1e-9:
+            continue
+        angle = math.degrees(math.acos(float(np.clip(d @ want / n, -1.0, 1.0))))
+        if angle > STANDING_TOLERANCE_DEG:
+            out.append(f"{label} {angle:.0f}°")
+    return out
+
+
 def retarget(clip: MotionClip, body, *, fps: float | None = None, start: float | None = None,
              end: float | None = None, loop: bool = False, base_pose: BodyPose | None = None,
              floor_poses: list[BodyPose] | None = None, keep_heading: bool = False) -> RetargetResult:
@@ -235,6 +262,12 @@ def retarget(clip: MotionClip, body, *, fps: float | None = None, start: float |
     if dropped:
         notes.append(f"{len(dropped)} source joints have no bone on the {getattr(body, 'name', 'body')} body and "
                      f"are dropped: {', '.join(dropped[:12])}{' ...' if len(dropped) > 12 else ''}")
+    bent = rest_stance(src_rest_body, src_roles)
+    if bent:
+        notes.append(f"the source's rest pose does not stand upright ({', '.join(bent)} from vertical): it is likely a "
+                     "frame of the motion (an FBX without a bind pose keeps the pose of the frame it was exported "
+                     "at), and every pose is read relative to it; export the motion with its mesh or at a T-pose "
+                     "frame")
     missing = sorted(r for r in body_roles if r not in src_roles)
     if missing:
         notes.append(f"the source has no joint for {', '.join(missing)}: those bones stay at rest relative to their parent")
