@@ -427,9 +427,41 @@ def test_fill_holes_fills_small_enclosed_holes_only():
     assert remove_others(out, others)[:, 60:].max() == 0 and remove_others(out, others)[50, 32] == 1.0
 
 
+def test_grow_is_the_euclidean_disc_dilation(tmp_path):
+    """``grabcut_refine.grow`` (a distance transform, linear in the image whatever the radius) keeps
+    exactly the pixels within the radius of the mask, against a brute-force float64 distance."""
+    python = detector_python()
+    if python is None:
+        pytest.skip("no Python with mediapipe/OpenCV")
+    script = tmp_path / "grow.py"
+    script.write_text(f"""
+import sys, json
+import numpy as np
+sys.path.insert(0, {str(Path(__file__).resolve().parents[1] / 'reconstruct' / 'data' / 'prepare')!r})
+from grabcut_refine import grow
+rng = np.random.default_rng(1)
+bad = 0
+for trial in range(6):
+    H, W = 47, 61
+    m = rng.random((H, W)) < 0.004 * (trial + 1)
+    m[20:24, 10:30] |= trial % 2 == 0
+    ys, xs = np.nonzero(m)
+    yy, xx = np.mgrid[:H, :W]
+    d = np.sqrt((yy[..., None] - ys) ** 2 + (xx[..., None] - xs) ** 2).min(-1)
+    for r in (1.0, 2.5, 7.0, 19.0):
+        bad += int((grow(m, r) != (d <= r + 1e-9)).sum())
+print(json.dumps({{"bad": bad, "empty": int(grow(np.zeros((5, 5), bool), 3.0).sum())}}))
+""")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    res = subprocess.run([python, str(script)], capture_output=True, text=True, env=env, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout.strip().splitlines()[-1]) == {"bad": 0, "empty": 0}
+
+
 def test_grabcut_restores_a_bite_and_keeps_the_rest(tmp_path):
     """A light 'skirt' on a light background that the segmenter bit into: the refinement grows it back;
-    a refinement that disagrees wildly falls back to the segmenter's mask."""
+    a refinement that disagrees wildly falls back to the segmenter's mask; the same frame gives the
+    same mask whatever OpenCV's generator did before."""
     python = detector_python()
     if python is None:
         pytest.skip("no Python with mediapipe/OpenCV")
@@ -455,18 +487,22 @@ for i, (x, y) in {{11: (70, 25), 12: (50, 25), 23: (66, 80), 24: (54, 80), 25: (
                   27: (67, 150), 28: (53, 150)}}.items():
     kp[i] = (x, y); vis[i] = 1.0
 out, info = refine_mask(img, soft, kp, vis)
+import cv2
+cv2.randu(np.zeros((50, 50)), 0, 1)                                               # OpenCV's generator moves on
+again, _ = refine_mask(img, soft, kp, vis)
 iou = lambda a, b: float((a & b).sum() / (a | b).sum())
 raw2 = soft.copy()
 bad, info2 = refine_mask(img, raw2, kp, vis, min_agreement=1.01)  # any change counts as disagreeing
 print(json.dumps({{"before": iou(soft > 0.5, truth), "after": iou(out > 0.5, truth), "used": info["used"],
-                  "fallback_used": info2["used"], "fallback_is_raw": bool(np.array_equal(bad, raw2))}}))
+                  "fallback_used": info2["used"], "fallback_is_raw": bool(np.array_equal(bad, raw2)),
+                  "repeatable": bool(np.array_equal(out, again))}}))
 """)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     res = subprocess.run([python, str(script)], capture_output=True, text=True, env=env, timeout=120)
     assert res.returncode == 0, res.stderr
     r = json.loads(res.stdout.strip().splitlines()[-1])
     assert r["used"] and r["before"] < 0.9 and r["after"] > 0.97, r
-    assert not r["fallback_used"] and r["fallback_is_raw"]
+    assert not r["fallback_used"] and r["fallback_is_raw"] and r["repeatable"]
 
 
 # ----- a standing body stays upright from the side ------------------------------------------------------

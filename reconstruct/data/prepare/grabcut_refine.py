@@ -38,7 +38,7 @@ def refine_mask(image: np.ndarray, soft: np.ndarray, keypoints: np.ndarray | Non
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     sure_fg = cv2.erode((soft > 0.9).astype(np.uint8), kernel) > 0
     g = max(2, int(0.1 * size))  # beyond a tenth of the person's size from the mask: surely background
-    far = cv2.dilate(raw.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * g + 1, 2 * g + 1))) == 0
+    far = ~grow(raw, g)
     zone = _lower_body_zone(keypoints, visibility, (H, W), size)
     labels = np.where(soft > 0.5, cv2.GC_PR_FGD, cv2.GC_BGD).astype(np.uint8)
     labels[(soft <= 0.5) & zone & ~far] = cv2.GC_PR_BGD
@@ -54,6 +54,7 @@ def refine_mask(image: np.ndarray, soft: np.ndarray, keypoints: np.ndarray | Non
     if not (labels == cv2.GC_BGD).any() and not (labels == cv2.GC_PR_BGD).any():
         return soft.astype(np.float32), {"used": False, "iou_with_raw": 1.0, "reason": "no background"}
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    cv2.setRNGSeed(0)  # GrabCut's and k-means' starts draw from OpenCV's global generator: same frame, same mask
     try:
         bgr = np.ascontiguousarray(image[..., ::-1])
         cv2.grabCut(bgr, labels, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
@@ -118,6 +119,18 @@ def _lower_body_zone(keypoints, visibility, shape, size) -> np.ndarray:
         return zone > 0
     hull = cv2.convexHull(pts.reshape(-1, 1, 2)).astype(np.int32)
     cv2.fillConvexPoly(zone, hull, 1)
-    g = max(1, int(0.2 * size))
-    zone = cv2.dilate(zone, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * g + 1, 2 * g + 1)))
-    return zone > 0
+    return grow(zone > 0, max(1, int(0.2 * size)))
+
+
+def grow(mask: np.ndarray, radius: float) -> np.ndarray:
+    """``mask`` grown by a disc of ``radius`` pixels: the pixels within ``radius`` of it (exact
+    Euclidean distance). Equal to a dilation by an elliptical kernel but linear in the image's size
+    whatever the radius: the grown zones here reach 0.1-0.2 of the person's height, and on a 768 px
+    frame the two dilations by kernels of that size took 0.74 s, more than GrabCut itself (0.59 s)."""
+    import cv2
+
+    if not mask.any():
+        return np.zeros(mask.shape, bool)
+    outside = np.ascontiguousarray(~mask, np.uint8)
+    # float32 distances: a pixel exactly at the radius (7.0 read as 7.0000005) counts as within it
+    return cv2.distanceTransform(outside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= radius + 1e-3
