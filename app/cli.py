@@ -260,7 +260,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", dest="studio_device", choices=["cpu", "cuda"], default=None,
                    help="studio: where to train (default: a resumed run's own device, else cpu)")
     p.add_argument("--ply", dest="studio_ply", metavar="FILE", type=Path, default=None,
-                   help="studio: view a 3DGS .ply (ours or any other program's) without training")
+                   help="studio: view Gaussians without training: a 3DGS .ply (ours or any other program's), "
+                        "SuperSplat's .compressed.ply, a .splat or a .spz")
     sub = p.add_subparsers(dest="command")
 
     s = sub.add_parser("synth", help="write a synthetic scene folder (body, clothing, motion, cameras, ground truth)")

@@ -331,38 +331,45 @@ def _vertex_table(data: bytes, header: _Header, path: Path) -> tuple[dict[str, n
     if "vertex" not in names:
         raise PlyFormatError(f"{path}: no 'vertex' element (found elements {names or 'none'}): a 3DGS file keeps "
                              f"one Gaussian per vertex")
-    vi = names.index("vertex")
+    return element_table(data, header, "vertex", path), header.elements[names.index("vertex")].count
+
+
+def element_table(data: bytes, header: _Header, name: str, path: Path) -> dict[str, np.ndarray]:
+    """Every scalar property of element ``name`` (float64 columns by property name)."""
+    names = [e.name for e in header.elements]
+    vi = names.index(name)
     vertex = header.elements[vi]
     if vertex.lists:
-        raise PlyFormatError(f"{path}: the vertex element has list properties {vertex.lists}: a 3DGS file has only "
+        raise PlyFormatError(f"{path}: the {name} element has list properties {vertex.lists}: a 3DGS file has only "
                              f"scalar properties")
     n = vertex.count
     props = [p for p, _ in vertex.properties]
     dups = sorted({p for p in props if props.count(p) > 1})
     if dups:
-        raise PlyFormatError(f"{path}: vertex properties {dups} are declared twice")
+        raise PlyFormatError(f"{path}: {name} properties {dups} are declared twice")
     before = header.elements[:vi]
     body = data[header.data_offset:]
     if header.fmt == "ascii":
-        return _ascii_vertices(body, header, before, vertex, path), n
+        return _ascii_vertices(body, header, before, vertex, path)
     endian = FORMATS[header.fmt]
     offset = 0
     for e in before:
         if e.lists:
-            raise PlyFormatError(f"{path}: element {e.name!r} before 'vertex' has list properties {e.lists}; "
+            raise PlyFormatError(f"{path}: element {e.name!r} before {name!r} has list properties {e.lists}; "
                                  f"binary files with those before the vertices are not read")
         offset += e.count * np.dtype([(f"p{i}", endian + t) for i, (_, t) in enumerate(e.properties)]).itemsize
     dtype = np.dtype([(p, endian + t) for p, t in vertex.properties])
     need = n * dtype.itemsize
     have = len(body) - offset
+    rows = "vertices" if name == "vertex" else f"{name} rows"
     if have < need:
-        raise PlyFormatError(f"{path}: truncated: the header declares {n} vertices of {dtype.itemsize} bytes "
-                             f"({need} bytes), the file holds {max(have, 0)} bytes of vertex data")
+        raise PlyFormatError(f"{path}: truncated: the header declares {n} {rows} of {dtype.itemsize} bytes "
+                             f"({need} bytes), the file holds {max(have, 0)} bytes of {name} data")
     if vi == len(header.elements) - 1 and have > need and body[offset + need:].strip(b" \t\r\n\x00"):
-        raise PlyFormatError(f"{path}: count mismatch: the header declares {n} vertices ({need} bytes) but the file "
-                             f"holds {have} bytes of data after the header")
+        raise PlyFormatError(f"{path}: count mismatch: the header declares {n} {rows} ({need} bytes) but the "
+                             f"file holds {have} bytes of data after the header")
     rec = np.frombuffer(body, dtype=dtype, count=n, offset=offset)
-    return {p: rec[p].astype(np.float64) for p in props}, n
+    return {p: rec[p].astype(np.float64) for p in props}
 
 
 def _ascii_vertices(body: bytes, header: _Header, before: list[_Element], vertex: _Element, path: Path):
@@ -419,6 +426,17 @@ def read_gaussians_ply(path) -> PlyGaussians:
         raise PlyFormatError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
     header = _parse_header(data, path)
     cols, n = _vertex_table(data, header, path)
+    if "packed_position" in cols:  # PlayCanvas / SuperSplat's compressed layout
+        from .compressed_ply import decode_compressed_ply
+
+        cols = decode_compressed_ply(data, header, cols, path)
+    return gaussians_from_columns(cols, tuple(header.comments), path)
+
+
+def gaussians_from_columns(cols: dict[str, np.ndarray], comments: tuple[str, ...], path: Path) -> PlyGaussians:
+    """``PlyGaussians`` from columns named as in the 3DGS layout (``REQUIRED``, optional normals and
+    ``f_rest_*``), whichever file they came from; the checks and the ``up`` frame of
+    ``read_gaussians_ply``."""
     missing = [p for p in REQUIRED if p not in cols]
     if missing:
         raise PlyFormatError(f"{path}: missing vertex properties {missing} of the 3DGS layout (found "
@@ -447,13 +465,13 @@ def read_gaussians_ply(path) -> PlyGaussians:
     colors = 0.5 + C0 * stack(("f_dc_0", "f_dc_1", "f_dc_2"))
     n_rest = sum(1 for p in cols if p.startswith("f_rest_"))
     degree = next((d for d in range(4) if num_rest_coefficients(d) == n_rest), None)
-    up = _up_of(header.comments, path)
+    up = _up_of(comments, path)
     if up is not None:
         means, normals, rotations = _to_frame(up, means, normals, rotations, inverse=True)
         rotations = rotations / np.linalg.norm(rotations, axis=1, keepdims=True)
     f32 = lambda a: None if a is None else np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
     return PlyGaussians(f32(means), f32(scales), f32(rotations), f32(opacities), f32(colors), f32(normals), degree,
-                        up, tuple(header.comments))
+                        up, tuple(comments))
 
 
 def ply_to_snapshot(g: PlyGaussians, *, space: str = "observation", frame_index: int = 0) -> Snapshot:

@@ -63,20 +63,22 @@ def _stand_up(means, normals, rotations, up: str):
 
 
 def read_ply_for_view(path, foreign_up: str = "y_down") -> PlyInfo:
-    """Read ``path`` (any 3DGS .ply; ``reconstruct.ply``) for drawing. Raises ``PlyFormatError``
+    """Read ``path`` (any 3DGS or compressed .ply, .splat or .spz; ``reconstruct.gaussian_files``)
+    for drawing. Raises ``PlyFormatError``
     (a ValueError naming the file, what was expected and found) for a malformed file."""
     import dataclasses
 
-    from reconstruct.ply import PlyFormatError, ply_to_snapshot, read_gaussians_ply
+    from reconstruct.gaussian_files import read_gaussians
+    from reconstruct.ply import PlyFormatError, ply_to_snapshot
 
     t0 = time.perf_counter()
     text = str(path).strip()
     if not text:
-        raise ValueError("no .ply file given: type the path of a 3DGS .ply file")
+        raise ValueError("no splat file given: type the path of a 3DGS .ply, .splat or .spz file")
     path = Path(text).expanduser()
     if path.is_dir():
         raise PlyFormatError(f"{path}: is a folder; open one of its .ply files (e.g. {path / 'frame_0000.ply'})")
-    g = read_gaussians_ply(path)
+    g = read_gaussians(path)
     if len(g) == 0:
         raise PlyFormatError(f"{path}: holds no Gaussians (the vertex element is empty)")
     turned = g.up or foreign_up

@@ -1,5 +1,6 @@
-"""Beside panel: a 3DGS .ply (an earlier export, another program's file) drawn beside the live
-avatar, with the same render mode and camera; errors shown here, the live view untouched."""
+"""Beside panel: Gaussians from a file (an earlier export, another program's .ply, .splat or .spz)
+drawn beside the live avatar, with the same render mode and camera; errors shown here, the live
+view untouched."""
 
 from __future__ import annotations
 

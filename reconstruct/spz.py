@@ -1,0 +1,147 @@
+"""Niantic's ``.spz``: Gaussians quantised column by column, gzip- (versions 2-3) or per-column
+zstd-compressed (version 4), read as data.
+
+Header (16 bytes; 32 from version 4): magic ``NGSP``, version, count, SH degree, fractional bits,
+flags (1: trained with antialiasing), then (v4) the number of streams and the offset of their table.
+Columns: positions (3 x signed 24-bit fixed point with the fractional bits), opacities (uint8,
+the sigmoid), colours (uint8: ``f_dc * 0.15 + 0.5``), log standard deviations (uint8: ``(log + 10)
+* 16``), rotations (v2: x, y, z as uint8 over [-1, 1] with w >= 0 derived; v3-4: "smallest three",
+the largest component's index in the top 2 bits and the other three as 9-bit magnitudes over
+[0, 1/√2] with a sign bit), and the higher SH (uint8 around 128, coefficient by coefficient with
+the colour channels inside). Read in the frame ``splat-transform`` (PlayCanvas, using Niantic's own
+library) reads it in, the 3DGS ``.ply``'s; checked against its decoding
+(``tests/test_splat_formats.py``). Every size is checked before a column is read; compressed
+streams must unpack to exactly the size the header implies.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import math
+import struct
+from pathlib import Path
+
+import numpy as np
+
+MAGIC = 0x5053474E  # "NGSP"
+COLOR_SCALE = 0.15
+SH_COMPONENTS = {0: 0, 1: 9, 2: 24, 3: 45}
+MAX_GAUSSIANS = 1 << 28
+
+
+def is_spz(data: bytes) -> bool:
+    return data[:2] == b"\x1f\x8b" or (len(data) >= 4 and struct.unpack_from("<I", data)[0] == MAGIC)
+
+
+def _gunzip(data: bytes, path: Path, limit: int) -> bytes:
+    from .ply import PlyFormatError
+
+    try:
+        with gzip.GzipFile(fileobj=io.BytesIO(data)) as f:
+            out = f.read(limit + 1)
+    except (OSError, EOFError, ValueError) as exc:
+        raise PlyFormatError(f"{path}: a .spz file whose gzip stream cannot be unpacked ({exc})") from None
+    if len(out) > limit:
+        raise PlyFormatError(f"{path}: a .spz file unpacking to more than {limit} bytes")
+    return out
+
+
+def decode_spz(data: bytes, path: Path) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
+    """(the 3DGS columns, comments such as 'spz version 4, antialiased') of a ``.spz`` file's bytes.
+    Raises ``PlyFormatError`` naming the file."""
+    from .compressed_ply import logit
+    from .ply import PlyFormatError
+
+    def fail(msg):
+        return PlyFormatError(f"{path}: {msg}")
+
+    if data[:2] == b"\x1f\x8b":
+        data = _gunzip(data, path, 16 + MAX_GAUSSIANS * 64)
+    if len(data) < 16 or struct.unpack_from("<I", data)[0] != MAGIC:
+        raise fail("not a .spz file (no 'NGSP' header)")
+    version, n = struct.unpack_from("<II", data, 4)
+    degree, frac, flags = data[12], data[13], data[14]
+    if version not in (2, 3, 4):
+        raise fail(f".spz version {version}; versions 2, 3 and 4 are read")
+    if degree not in SH_COMPONENTS:
+        raise fail(f"SH degree {degree}; 0-3 are read")
+    if n > MAX_GAUSSIANS:
+        raise fail(f"{n} Gaussians declared, more than this reader takes ({MAX_GAUSSIANS})")
+    rot_width = 3 if version == 2 else 4
+    sizes = [n * 9, n, n * 3, n * 3, n * rot_width] + ([n * SH_COMPONENTS[degree]] if degree else [])
+    if version >= 4:
+        if len(data) < 32:
+            raise fail("truncated .spz header (version 4 has 32 bytes)")
+        count, toc = data[15], struct.unpack_from("<I", data, 16)[0]
+        if count != len(sizes) or toc < 32 or toc + 16 * count > len(data):
+            raise fail(f"a .spz stream table that does not fit: {count} streams at byte {toc} (expected {len(sizes)})")
+        try:
+            import zstandard
+        except ImportError:
+            raise fail("a version 4 .spz file needs the 'zstandard' package (pip install zstandard)") from None
+        pos = toc + 16 * count
+        streams = []
+        for i in range(count):
+            packed, unpacked = struct.unpack_from("<QQ", data, toc + 16 * i)
+            if unpacked != sizes[i] or pos + packed > len(data):
+                raise fail(f".spz stream {i}: {unpacked} bytes unpacked from {packed} at byte {pos}; expected "
+                           f"{sizes[i]} within the file's {len(data)} bytes")
+            try:
+                raw = zstandard.ZstdDecompressor().decompress(data[pos:pos + packed], max_output_size=sizes[i])
+            except zstandard.ZstdError as exc:
+                raise fail(f".spz stream {i} cannot be unpacked ({exc})") from None
+            if len(raw) != sizes[i]:
+                raise fail(f".spz stream {i} unpacks to {len(raw)} bytes, not {sizes[i]}")
+            streams.append(raw)
+            pos += packed
+    else:
+        need = 16 + sum(sizes)
+        if len(data) < need:
+            raise fail(f"truncated .spz data: {n} Gaussians need {need} bytes, the file unpacks to {len(data)}")
+        streams, pos = [], 16
+        for s in sizes:
+            streams.append(data[pos:pos + s])
+            pos += s
+    b = [np.frombuffer(s, np.uint8) for s in streams]
+    p = b[0].reshape(n, 3, 3).astype(np.int32)
+    fixed = p[..., 0] | (p[..., 1] << 8) | (p[..., 2] << 16)
+    fixed = np.where(fixed & 0x800000, fixed - (1 << 24), fixed)
+    means = fixed.astype(np.float64) / (1 << frac)
+    out = {axis: means[:, k] for k, axis in enumerate("xyz")}
+    out["opacity"] = logit(b[1].astype(np.float64) / 255.0)
+    colours = b[2].reshape(n, 3).astype(np.float64)
+    logs = b[3].reshape(n, 3).astype(np.float64) / 16.0 - 10.0
+    for k in range(3):
+        out[f"f_dc_{k}"] = (colours[:, k] / 255.0 - 0.5) / COLOR_SCALE
+        out[f"scale_{k}"] = logs[:, k]
+    if version == 2:
+        xyz = b[4].reshape(n, 3).astype(np.float64) / 127.5 - 1.0
+        w = np.sqrt(np.maximum(0.0, 1.0 - (xyz ** 2).sum(1)))
+        q = np.concatenate([w[:, None], xyz], 1)
+    else:
+        packed = np.frombuffer(streams[4], "<u4").astype(np.int64)
+        largest = packed >> 30
+        xyzw = np.zeros((n, 4))
+        shift = np.zeros(n, np.int64)
+        total = np.zeros(n)
+        for j in (3, 2, 1, 0):  # the components other than the largest, from the low bits up
+            skip = largest == j
+            word = packed >> shift
+            v = math.sqrt(0.5) * (word & 511) / 511.0
+            v = np.where((word >> 9) & 1, -v, v)
+            xyzw[:, j] = np.where(skip, 0.0, v)
+            total += np.where(skip, 0.0, v * v)
+            shift += np.where(skip, 0, 10)
+        xyzw[np.arange(n), largest] = np.sqrt(np.maximum(0.0, 1.0 - total))
+        q = xyzw[:, [3, 0, 1, 2]]
+    for k in range(4):
+        out[f"rot_{k}"] = q[:, k]
+    if degree:
+        m = SH_COMPONENTS[degree]
+        sh = (b[5].reshape(n, m).astype(np.float64) - 128.0) / 128.0
+        per = m // 3
+        for c in range(m):  # stored coefficient by coefficient, channels inside; 3DGS keeps channels outside
+            out[f"f_rest_{(c % 3) * per + c // 3}"] = sh[:, c]
+    comments = (f"spz version {version}" + (", antialiased" if flags & 1 else ""),)
+    return out, comments

@@ -1,0 +1,127 @@
+"""Other splat files (reconstruct.gaussian_files, compressed_ply, spz, splat_file) checked against
+PlayCanvas's splat-transform, which bundles Niantic's own .spz library.
+
+``tests/data/splats`` was made by ``scripts/make_splat_fixtures.py``: a 300-Gaussian 3DGS PLY with
+degree-1 SH, converted by splat-transform to SuperSplat's compressed PLY and to .spz versions 4
+(zstd) and 3 (gzip), and written as .splat by our encoder; splat-transform then decoded each back
+to a plain PLY. Our reading of each file must equal splat-transform's decoding (float32 rounding),
+SH included, and the source within each format's quantisation.
+"""
+
+from __future__ import annotations
+
+import gzip
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reconstruct.compressed_ply import decode_compressed_ply
+from reconstruct.gaussian_files import read_gaussians
+from reconstruct.ply import PlyFormatError, _parse_header, _vertex_table, read_gaussians_ply
+from reconstruct.splat_file import decode_splat, encode_splat
+from reconstruct.spz import decode_spz
+
+DATA = Path(__file__).parent / "data" / "splats"
+FILES = ["source.compressed.ply", "source.spz", "source_v3.spz", "source.splat"]
+# each format's quantisation against the source: position (m), log-scale, rotation, opacity, colour
+STEPS = {"source.compressed.ply": (1e-3, 2e-3, 2e-3, 3e-3, 3e-3), "source.spz": (3e-4, 0.032, 2e-3, 3e-3, 5e-3),
+         "source_v3.spz": (3e-4, 0.032, 2e-3, 3e-3, 5e-3), "source.splat": (1e-6, 1e-6, 8e-3, 3e-3, 3e-3)}
+
+
+def _columns(path: Path) -> dict[str, np.ndarray]:
+    data = path.read_bytes()
+    if path.suffix == ".spz":
+        return decode_spz(data, path)[0]
+    if path.suffix == ".splat":
+        return decode_splat(data, path)
+    header = _parse_header(data, path)
+    cols, _ = _vertex_table(data, header, path)
+    return decode_compressed_ply(data, header, cols, path) if "packed_position" in cols else cols
+
+
+def _rot_diff(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.minimum(np.abs(a - b).max(1), np.abs(a + b).max(1)).max())
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_each_format_reads_as_splat_transform_decodes_it(name):
+    ours = read_gaussians(DATA / name)
+    ref = read_gaussians_ply(DATA / (name.replace(".", "_") + ".decoded.ply"))
+    assert len(ours) == len(ref) == 300
+    assert ours.sh_degree == (0 if name.endswith(".splat") else 1) == ref.sh_degree
+    np.testing.assert_allclose(ours.means, ref.means, atol=1e-7)
+    np.testing.assert_allclose(np.log(ours.scales), np.log(ref.scales), atol=1e-6)
+    assert _rot_diff(ours.rotations.astype(float), ref.rotations.astype(float)) < 1e-6
+    np.testing.assert_allclose(ours.opacities, ref.opacities, atol=1e-6)
+    np.testing.assert_allclose(ours.colors, ref.colors, atol=1e-6)
+    cols, ref_cols = _columns(DATA / name), _columns(DATA / (name.replace(".", "_") + ".decoded.ply"))
+    for k in range(9 if not name.endswith(".splat") else 0):  # the SH, channel order included
+        np.testing.assert_allclose(cols[f"f_rest_{k}"], ref_cols[f"f_rest_{k}"], atol=1e-6, err_msg=f"f_rest_{k}")
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_each_format_holds_the_source_within_its_quantisation(name):
+    """The compressed PLY is in Morton order: Gaussians are matched by position first."""
+    src, ours = read_gaussians_ply(DATA / "source.ply"), read_gaussians(DATA / name)
+    d = np.linalg.norm(ours.means[:, None].astype(float) - src.means[None].astype(float), axis=-1)
+    j = d.argmin(1)
+    assert len(set(j)) == len(src)
+    pos, logscale, rot, opacity, colour = STEPS[name]
+    assert d.min(1).max() < pos
+    assert np.abs(np.log(ours.scales) - np.log(src.scales[j])).max() < logscale
+    assert _rot_diff(ours.rotations.astype(float), src.rotations[j].astype(float)) < rot
+    assert np.abs(ours.opacities - src.opacities[j]).max() < opacity
+    assert np.abs(ours.colors - np.clip(src.colors[j], 0, 1)).max() < colour
+    if name.endswith(".spz") or name.endswith(".ply"):
+        src_cols, cols = _columns(DATA / "source.ply"), _columns(DATA / name)
+        for k in range(9):
+            assert np.abs(cols[f"f_rest_{k}"] - src_cols[f"f_rest_{k}"][j]).max() < 0.035, k
+
+
+def test_the_splat_writer_is_what_the_fixture_holds_and_round_trips():
+    src = read_gaussians_ply(DATA / "source.ply")
+    data = encode_splat(src.means, src.scales, src.rotations, src.opacities, src.colors)
+    assert data == (DATA / "source.splat").read_bytes()
+
+
+def test_spz_comments_and_the_studios_reader(tmp_path):
+    assert read_gaussians(DATA / "source.spz").comments == ("spz version 4",)
+    assert read_gaussians(DATA / "source_v3.spz").comments == ("spz version 3",)
+    from app.studio.ply_source import read_ply_for_view
+
+    for name in FILES:
+        info = read_ply_for_view(DATA / name)
+        assert info.num_gaussians == 300 and info.snapshot.means.shape == (300, 3)
+
+
+def test_broken_files_are_refused_naming_the_file(tmp_path):
+    def refused(name: str, data: bytes, pattern: str):
+        p = tmp_path / name
+        p.write_bytes(data)
+        with pytest.raises(PlyFormatError, match=pattern):
+            read_gaussians(p)
+
+    splat = (DATA / "source.splat").read_bytes()
+    refused("cut.splat", splat[:-5], r"cut\.splat: not a \.splat file: its size \(9595 bytes\) is not a positive "
+                                     r"multiple of 32")
+    refused("empty.splat", b"", r"empty\.splat: not a \.splat file")
+    zero = bytearray(splat[:32])
+    zero[12:16] = struct.pack("<f", 0.0)
+    refused("zero.splat", bytes(zero), r"zero\.splat: 1 Gaussians have a scale that is not a positive finite number")
+    spz4 = (DATA / "source.spz").read_bytes()
+    refused("cut.spz", spz4[:len(spz4) // 2], r"cut\.spz: \.spz stream \d+: .* expected \d+ within the file's")
+    refused("v9.spz", spz4[:4] + struct.pack("<I", 9) + spz4[8:], r"v9\.spz: \.spz version 9; versions 2, 3 and 4")
+    v3 = gzip.decompress((DATA / "source_v3.spz").read_bytes())
+    refused("short.spz", gzip.compress(v3[:200]), r"short\.spz: truncated \.spz data: 300 Gaussians need \d+ bytes")
+    refused("bad.spz", b"\x1f\x8b" + bytes(30), r"bad\.spz: a \.spz file whose gzip stream cannot be unpacked")
+    huge = bytearray(v3[:16])
+    huge[8:12] = struct.pack("<I", 1 << 30)
+    refused("huge.spz", gzip.compress(bytes(huge)), r"huge\.spz: 1073741824 Gaussians declared")
+    comp = (DATA / "source.compressed.ply").read_bytes()
+    refused("chunks.compressed.ply", comp.replace(b"element chunk 2", b"element chunk 1", 1),
+            r"chunks\.compressed\.ply: 300 Gaussians need 2 chunk rows of 256, the file holds 1")
+    refused("nochunk.ply", comp.replace(b"element chunk 2", b"element chonk 2", 1),
+            r"nochunk\.ply: a compressed PLY needs a 'chunk' element")
+    refused("other.bin", b"GIF89a" + bytes(40), r"other\.bin: not a Gaussian splat file this program reads")
