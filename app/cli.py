@@ -173,7 +173,16 @@ def _cmd_export(args) -> int:
         raise ValueError(f"--fps must be positive, found {args.fps}")
     # before any loading or rendering: the destination, then the motion file
     if args.ply is not None:
-        check_ply_destination(args.ply, sequence=what not in ("frame", "canonical"), overwrite=args.overwrite)
+        single = what in ("frame", "canonical")
+        check_ply_destination(args.ply, sequence=not single, overwrite=args.overwrite)
+        if single and args.format is not None:
+            from reconstruct.gaussian_files import splat_format
+
+            if splat_format(args.ply) != args.format:
+                raise ValueError(f"{args.ply}: the name asks for {splat_format(args.ply)!r}, --format says "
+                                 f"{args.format!r}; name the file NAME.{args.format}")
+    elif args.format is not None:
+        raise ValueError("--format applies to --ply only")
     else:
         check_destination(args.out, suffixes=VIDEO_SUFFIXES)
     clip = None
@@ -202,8 +211,9 @@ def _cmd_export(args) -> int:
         plan = plan_ply(avatar, args.ply, frame=args.frame if what == "frame" else None,
                         canonical=what == "canonical", novel=args.novel, frames=args.frames, motion=motion,
                         scene=poses, overwrite=args.overwrite)
-        out = write_ply_plan(plan, up=args.up, sh_degree=args.sh_degree, progress=progress, overwrite=args.overwrite)
-        count = f" ({len(plan)} frames, frame_0000.ply ...)" if plan.sequence else ""
+        out = write_ply_plan(plan, up=args.up, sh_degree=args.sh_degree, progress=progress, overwrite=args.overwrite,
+                             fmt=args.format)
+        count = f" ({len(plan)} frames, frame_0000.{args.format or 'ply'} ...)" if plan.sequence else ""
         print(f"wrote {out}{count}")
         return 0
     common = {"mode": args.mode, "progress": progress}
@@ -353,8 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     out = s.add_argument_group("output (one of)")
     out.add_argument("--out", type=Path, default=None, help="video file (.mp4 or .gif)")
     out.add_argument("--ply", type=Path, default=None, metavar="OUT",
-                     help="3DGS .ply: OUT.ply for one pose (--frame F, default 0, or --canonical); a new folder "
-                          "for a sequence (--poses, --novel, --motion): OUT/frame_0000.ply ... (docs/ply.md)")
+                     help="Gaussians: OUT.ply (3DGS), OUT.compressed.ply, OUT.splat or OUT.spz for one pose (--frame F, "
+                          "default 0, or --canonical); a new folder for a sequence (--poses, --novel, --motion): "
+                          "OUT/frame_0000.ply ... (--format for the others; docs/ply.md)")
     s.add_argument("--size", type=int, default=512, help="frame size in pixels (longer side for --poses)")
     s.add_argument("--fps", type=float, default=None,
                    help="frames per second (default 30 for --orbit, the scene's otherwise; --motion is resampled to it)")
@@ -371,6 +382,9 @@ def build_parser() -> argparse.ArgumentParser:
     p_.add_argument("--sh-degree", type=int, default=3, choices=[0, 1, 2, 3],
                     help="SH degree of the file (higher coefficients are zero; 3 is what viewers expect)")
     p_.add_argument("--overwrite", action="store_true", help="replace an existing sequence folder")
+    p_.add_argument("--format", default=None, choices=["ply", "compressed.ply", "splat", "spz"],
+                    help="layout of a sequence's files (default ply; .spz is about 20 times smaller, quantised); "
+                         "a single file's name picks its own")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_cmd_export, export_parser=s)
 

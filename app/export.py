@@ -28,6 +28,7 @@ VIDEO_SUFFIXES = (".mp4", ".gif")
 IMAGE_SUFFIXES = (".png",)
 SUPPORTED_SUFFIXES = VIDEO_SUFFIXES + IMAGE_SUFFIXES
 PLY_SUFFIX = ".ply"
+SPLAT_SUFFIXES = (".ply", ".splat", ".spz")  # one pose: the name picks the layout (NAME.compressed.ply too)
 
 
 # ----------------------------------------------------------------------------- destination checks
@@ -381,13 +382,14 @@ class PlyPlan:
 
 
 def check_ply_destination(out_path, *, sequence: bool, overwrite: bool = False) -> Path:
-    """A ``.ply`` file name in a writable folder, or (``sequence``) a new folder name there."""
+    """A splat file name (``.ply``, ``.compressed.ply``, ``.splat``, ``.spz``) in a writable folder,
+    or (``sequence``) a new folder name there."""
     out = Path(out_path)
     if not sequence:
-        return check_destination(out, suffixes=(PLY_SUFFIX,))
-    if out.suffix.lower() == PLY_SUFFIX:
-        raise ValueError(f"{out}: a pose sequence is written as one .ply per frame into a folder; "
-                         f"give a folder name (without .ply)")
+        return check_destination(out, suffixes=SPLAT_SUFFIXES)
+    if out.suffix.lower() in SPLAT_SUFFIXES:
+        raise ValueError(f"{out}: a pose sequence is written as one file per frame into a folder; "
+                         f"give a folder name (without {out.suffix})")
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
         raise FileNotFoundError(f"{out}: the output folder {folder} does not exist")
@@ -461,11 +463,19 @@ class _LazySnapshots:
 
 
 def write_ply_plan(plan: PlyPlan, *, up: str = "y_down", sh_degree: int = 3, progress: bool | Callable = True,
-                   overwrite: bool = False) -> Path:
-    """Write ``plan`` (``reconstruct.ply``: atomically, a sequence all or nothing). ``progress``:
+                   overwrite: bool = False, fmt: str | None = None) -> Path:
+    """Write ``plan`` (``reconstruct.ply``: atomically, a sequence all or nothing). ``fmt``: the
+    layout of a sequence's files ("ply" by default, "compressed.ply", "splat", "spz"; a single
+    file's name picks its own, and a ``fmt`` that disagrees with it is an error). ``progress``:
     a tqdm bar (True), none (False), or a ``progress(done, total)`` callable. Returns ``plan.out``."""
+    from reconstruct.gaussian_files import FORMATS, splat_format
     from reconstruct.ply import UP_CHOICES, write_ply_sequence, write_snapshot_ply
 
+    if fmt is not None and fmt not in FORMATS:
+        raise ValueError(f"splat file format must be one of {', '.join(FORMATS)}, found {fmt!r}")
+    if fmt is not None and not plan.sequence and splat_format(plan.out) != fmt:
+        raise ValueError(f"{plan.out}: the name asks for {splat_format(plan.out)!r}, the format given is {fmt!r}; "
+                         f"name the file NAME.{fmt}")
     if up not in UP_CHOICES:
         raise ValueError(f"up must be one of {', '.join(UP_CHOICES)}, found {up!r}")
     if sh_degree not in (0, 1, 2, 3):
@@ -485,7 +495,7 @@ def write_ply_plan(plan: PlyPlan, *, up: str = "y_down", sh_degree: int = 3, pro
         callback = lambda done, total: bar.update(done - bar.n)
     try:
         write_ply_sequence(plan.out, _LazySnapshots(plan), progress=callback, overwrite=overwrite, up=up,
-                           sh_degree=sh_degree)
+                           sh_degree=sh_degree, suffix="." + (fmt or "ply"))
     finally:
         if bar is not None:
             bar.close()

@@ -104,3 +104,73 @@ def decode_compressed_ply(data: bytes, header, vertex: dict[str, np.ndarray], pa
                 nrm = np.where(b == 0, 0.0, np.where(b == 255, 1.0, (b + 0.5) / 256.0))
                 out[key] = (nrm - 0.5) * 8.0
     return out
+
+
+def morton_order(means: np.ndarray, bits: int = 10) -> np.ndarray:
+    """Indices that put ``means`` (N,3) in Morton (Z-curve) order on a 2^bits grid over their box, so
+    that each block of 256 is compact and quantised finely."""
+    lo, hi = means.min(0), means.max(0)
+    cells = np.clip(((means - lo) / np.maximum(hi - lo, 1e-12) * ((1 << bits) - 1)).round(), 0, (1 << bits) - 1)
+    cells = cells.astype(np.uint64)
+    code = np.zeros(len(means), np.uint64)
+    for b in range(bits):
+        for axis in range(3):
+            code |= ((cells[:, axis] >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b + axis)
+    return np.argsort(code, kind="stable")
+
+
+def _pack(t: np.ndarray, bits: int) -> np.ndarray:
+    return np.clip(np.round(t * ((1 << bits) - 1)), 0, (1 << bits) - 1).astype(np.uint32)
+
+
+def _span(v: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    width = hi - lo
+    return np.where(width > 0, (v - lo) / np.where(width > 0, width, 1.0), 0.0)
+
+
+def encode_compressed_ply(means, scales, rotations, opacities, colors, comments=()) -> bytes:
+    """SuperSplat's compressed PLY (no higher SH) of Gaussians (N,3 means, N,3 standard deviations,
+    N,4 wxyz rotations, N opacities, N,3 colours in [0, 1]), put in Morton order first."""
+    means = np.asarray(means, np.float64)
+    order = morton_order(means) if len(means) else np.zeros(0, np.int64)
+    means = means[order]
+    logs = np.clip(np.log(np.maximum(np.asarray(scales, np.float64)[order], 1e-30)), -20.0, 20.0)
+    q = np.asarray(rotations, np.float64)[order]
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    colours = np.clip(np.asarray(colors, np.float64)[order], 0.0, 1.0)
+    alpha = np.clip(np.asarray(opacities, np.float64)[order], 0.0, 1.0)
+    n = len(means)
+    blocks = max(1, math.ceil(n / CHUNK))
+    ci = np.arange(n) // CHUNK
+    chunk = np.zeros((blocks, 18), np.float32)
+    for b in range(blocks):
+        sl = slice(b * CHUNK, min(n, (b + 1) * CHUNK))
+        if sl.start >= n:
+            continue
+        for k, v in enumerate((means[sl], logs[sl], colours[sl])):
+            chunk[b, 6 * k:6 * k + 3] = v.min(0)
+            chunk[b, 6 * k + 3:6 * k + 6] = v.max(0)
+    c = chunk.astype(np.float64)[ci]
+    t = _span(means, c[:, 0:3], c[:, 3:6])
+    position = (_pack(t[:, 0], 11) << 21) | (_pack(t[:, 1], 10) << 11) | _pack(t[:, 2], 11)
+    t = _span(logs, c[:, 6:9], c[:, 9:12])
+    scale = (_pack(t[:, 0], 11) << 21) | (_pack(t[:, 1], 10) << 11) | _pack(t[:, 2], 11)
+    largest = np.abs(q).argmax(1)
+    q = q * np.where(q[np.arange(n), largest] < 0, -1.0, 1.0)[:, None]
+    rotation = largest.astype(np.uint32) << 30
+    shift = np.full(n, 20)
+    for j in range(4):  # the other three in order, from the high bits down
+        keep = largest != j
+        word = _pack(q[:, j] / _SQRT2 + 0.5, 10)
+        rotation = np.where(keep, rotation | (word << shift.astype(np.uint32)), rotation)
+        shift = np.where(keep, shift - 10, shift)
+    t = _span(colours, c[:, 12:15], c[:, 15:18])
+    colour = (_pack(t[:, 0], 8) << 24) | (_pack(t[:, 1], 8) << 16) | (_pack(t[:, 2], 8) << 8) | _pack(alpha, 8)
+    names = [f"{m}_{a}" for m in ("min", "max") for a in "xyz"] + [f"{m}_scale_{a}" for m in ("min", "max")
+                                                                     for a in "xyz"] + \
+        [f"{m}_{a}" for m in ("min", "max") for a in "rgb"]
+    lines = ["ply", "format binary_little_endian 1.0"] + [f"comment {x}" for x in comments] + \
+        [f"element chunk {blocks}"] + [f"property float {x}" for x in names] + \
+        [f"element vertex {n}"] + [f"property uint {x}" for x in PACKED] + ["end_header"]
+    vertex = np.stack([position, rotation, scale, colour], 1).astype("<u4")
+    return ("\n".join(lines) + "\n").encode("ascii") + chunk.astype("<f4").tobytes() + vertex.tobytes()

@@ -1,19 +1,84 @@
-"""One entry for reading Gaussian splat files of any layout this program knows: the 3DGS ``.ply``
-(and PlayCanvas's compressed ``.ply``), antimatter15's ``.splat`` and Niantic's ``.spz``.
+"""One entry for Gaussian splat files of any layout this program knows: the 3DGS ``.ply`` (and
+PlayCanvas's compressed ``.ply``), antimatter15's ``.splat`` and Niantic's ``.spz``.
 
 ``read_gaussians(path)`` picks the reader by the file's first bytes (``ply`` / gzip or ``NGSP``),
 and by its suffix for ``.splat`` (which has no header), and returns ``PlyGaussians`` as
 ``reconstruct.ply.read_gaussians_ply`` does, with the same checks. Errors are ``PlyFormatError``
-naming the file.
+naming the file. ``write_gaussians(path, ...)`` writes the layout the name asks for
+(``splat_format``), atomically, in the ``up`` frame of ``write_gaussians_ply``.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from .ply import PlyFormatError, PlyGaussians, gaussians_from_columns, read_gaussians_ply
+import numpy as np
+
+from .atomic import atomic_output
+from .ply import (
+    C0,
+    PlyFormatError,
+    PlyGaussians,
+    gaussian_rows,
+    gaussians_from_columns,
+    property_names,
+    read_gaussians_ply,
+    write_gaussians_ply,
+)
 
 GAUSSIAN_SUFFIXES = (".ply", ".splat", ".spz")
+FORMATS = ("ply", "compressed.ply", "splat", "spz")  # what write_gaussians writes, by file name
+
+
+def splat_format(path) -> str:
+    """The layout a file name asks for: 'compressed.ply' (``NAME.compressed.ply``), 'ply', 'splat'
+    or 'spz'; ValueError for another suffix."""
+    name = Path(path).name.lower()
+    if name.endswith(".compressed.ply"):
+        return "compressed.ply"
+    suffix = Path(name).suffix
+    if suffix in GAUSSIAN_SUFFIXES:
+        return suffix[1:]
+    raise ValueError(f"{path}: unsupported splat file type {suffix or '(no suffix)'!r}; supported: .ply, "
+                     f".compressed.ply, .splat, .spz")
+
+
+def write_gaussians(path, means, scales, rotations, opacities, colors, normals=None, *, up: str = "y_down",
+                    sh_degree: int = 3, comments=()) -> Path:
+    """Write Gaussians (arrays as ``write_gaussians_ply`` takes them) in the layout ``path`` names:
+    the 3DGS ``.ply`` (``sh_degree``, normals, comments), SuperSplat's ``.compressed.ply``
+    (comments), ``.splat`` or ``.spz`` (version 3, gzip: what every reader takes); the last three
+    quantise (``docs/ply.md``) and hold no normals and no higher SH. Atomic: a failure leaves the
+    previous file or none."""
+    fmt = splat_format(path)
+    if fmt == "ply":
+        return write_gaussians_ply(path, means, scales, rotations, opacities, colors, normals, up=up,
+                                   sh_degree=sh_degree, comments=comments)
+    table = gaussian_rows(means, scales, rotations, opacities, colors, normals, up=up, sh_degree=0).astype(np.float64)
+    col = {name: k for k, name in enumerate(property_names(0))}
+
+    def take(*names):
+        return table[:, [col[n] for n in names]]
+
+    arrays = (take("x", "y", "z"), np.exp(take("scale_0", "scale_1", "scale_2")),
+              take("rot_0", "rot_1", "rot_2", "rot_3"), 1.0 / (1.0 + np.exp(-table[:, col["opacity"]])),
+              np.clip(0.5 + C0 * take("f_dc_0", "f_dc_1", "f_dc_2"), 0.0, 1.0))
+    if fmt == "compressed.ply":
+        from .compressed_ply import encode_compressed_ply
+
+        data = encode_compressed_ply(*arrays, comments=[f"wonderhuman up={up}"] + [str(c) for c in comments])
+    elif fmt == "splat":
+        from .splat_file import encode_splat
+
+        data = encode_splat(*arrays)
+    else:
+        from .spz import encode_spz
+
+        data = encode_spz(*arrays, version=3)
+    path = Path(path)
+    with atomic_output(path) as tmp, open(tmp, "wb") as f:
+        f.write(data)
+    return path
 
 
 def read_gaussians(path) -> PlyGaussians:

@@ -181,15 +181,20 @@ def snapshot_comments(snapshot: Snapshot) -> list[str]:
 
 
 def write_snapshot_ply(path, snapshot: Snapshot, **kw) -> Path:
-    """``write_gaussians_ply`` of a ``Snapshot`` (its space, frame, stage and step go into comments)."""
+    """A ``Snapshot``'s Gaussians in the layout ``path`` names (``gaussian_files.write_gaussians``:
+    3DGS ``.ply``, ``.compressed.ply``, ``.splat``, ``.spz``); its space, frame, stage and step go
+    into the comments of the PLY layouts."""
+    from .gaussian_files import write_gaussians
+
     comments = snapshot_comments(snapshot) + list(kw.pop("comments", ()))
-    return write_gaussians_ply(path, snapshot.means, snapshot.scales, snapshot.rotations, snapshot.opacities,
-                               snapshot.colors, snapshot.normals, comments=comments, **kw)
+    return write_gaussians(path, snapshot.means, snapshot.scales, snapshot.rotations, snapshot.opacities,
+                           snapshot.colors, snapshot.normals, comments=comments, **kw)
 
 
 def write_ply_sequence(folder, snapshots: Iterable[Snapshot], *, progress: Callable[[int, int | None], None] | None = None,
-                       overwrite: bool = False, **kw) -> list[Path]:
-    """One file per snapshot, ``frame_0000.ply``, ``frame_0001.ply`` ..., in ``folder``.
+                       overwrite: bool = False, suffix: str = ".ply", **kw) -> list[Path]:
+    """One file per snapshot, ``frame_0000.ply``, ``frame_0001.ply`` ..., in ``folder`` (``suffix``:
+    ``.compressed.ply``, ``.splat`` or ``.spz`` for those layouts).
 
     The files are written into a hidden temporary folder beside ``folder`` that is renamed into
     place only when every frame is written: a failed or interrupted export leaves no half-written
@@ -206,7 +211,7 @@ def write_ply_sequence(folder, snapshots: Iterable[Snapshot], *, progress: Calla
     try:
         names = []
         for i, snap in enumerate(snapshots):
-            names.append(f"frame_{i:04d}.ply")
+            names.append(f"frame_{i:04d}{suffix}")
             write_snapshot_ply(tmp / names[-1], snap, **kw)
             if progress is not None:
                 progress(i + 1, total)
@@ -443,7 +448,9 @@ def gaussians_from_columns(cols: dict[str, np.ndarray], comments: tuple[str, ...
                              f"{list(cols)})")
     has_normals = all(k in cols for k in ("nx", "ny", "nz"))
     used = list(REQUIRED) + (["nx", "ny", "nz"] if has_normals else [])
-    bad = {p: int((~np.isfinite(cols[p])).sum()) for p in used}
+    # an opacity logit of +-inf is opacity 1 or 0 (splat-transform writes +inf for a compressed PLY's
+    # opacity byte 255); NaN anywhere, and inf elsewhere, are refused
+    bad = {p: int((np.isnan(cols[p]) if p == "opacity" else ~np.isfinite(cols[p])).sum()) for p in used}
     bad = {p: k for p, k in bad.items() if k}
     if bad:
         raise PlyFormatError(f"{path}: non-finite values (NaN or inf) in vertex properties {bad} (counts)")

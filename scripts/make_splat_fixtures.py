@@ -10,7 +10,8 @@ Needs Node.js and ``npm install @playcanvas/splat-transform@3.7.0`` in a folder 
 1. ``source.ply``: 300 Gaussians (two of the compressed format's 256-blocks) with random means,
    log-scales, rotations, opacities, colours and degree-1 SH, written here as a plain 3DGS PLY.
 2. splat-transform converts it to ``source.compressed.ply``, ``source.spz`` (version 4, zstd) and
-   ``source_v3.spz`` (gzip); our ``.splat`` writer makes ``source.splat``.
+   ``source_v3.spz`` (gzip); the project's encoders write ``source.splat``, ``ours.compressed.ply``,
+   ``ours_v3.spz`` and ``ours_v4.spz`` from it.
 3. splat-transform decodes each of them back to a plain PLY (``source_spz.decoded.ply`` ...): what
    the tests compare the project's readers with.
 """
@@ -28,8 +29,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 OUT = ROOT / "tests" / "data" / "splats"
 N = 300
+WRITTEN = ("ours.compressed.ply", "ours_v3.spz", "ours_v4.spz")  # by the project's encoders
 DECODED = {name: name.replace(".", "_") + ".decoded.ply"
-           for name in ("source.compressed.ply", "source.spz", "source_v3.spz", "source.splat")}
+           for name in ("source.compressed.ply", "source.spz", "source_v3.spz", "source.splat") + WRITTEN}
 
 
 def write_source(path: Path, seed: int = 4) -> None:
@@ -55,8 +57,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--tool-dir", required=True, help="a folder with node_modules/@playcanvas/splat-transform")
     args = ap.parse_args()
+    from reconstruct.compressed_ply import encode_compressed_ply
     from reconstruct.ply import read_gaussians_ply
     from reconstruct.splat_file import encode_splat
+    from reconstruct.spz import encode_spz
 
     def tool(*argv):
         subprocess.run(["npx", "--no-install", "splat-transform", "-q", "-w", *argv], check=True, cwd=args.tool_dir)
@@ -68,7 +72,11 @@ def main() -> None:
     tool(str(src), str(OUT / "source.spz"))
     tool("--spz-version", "3", str(src), str(OUT / "source_v3.spz"))
     g = read_gaussians_ply(src)
-    (OUT / "source.splat").write_bytes(encode_splat(g.means, g.scales, g.rotations, g.opacities, g.colors))
+    arrays = (g.means, g.scales, g.rotations, g.opacities, g.colors)
+    (OUT / "source.splat").write_bytes(encode_splat(*arrays))
+    (OUT / "ours.compressed.ply").write_bytes(encode_compressed_ply(*arrays))
+    (OUT / "ours_v3.spz").write_bytes(encode_spz(*arrays, version=3))
+    (OUT / "ours_v4.spz").write_bytes(encode_spz(*arrays, version=4))
     for name in DECODED:
         tool(str(OUT / name), str(OUT / DECODED[name]))
     print(sorted(p.name for p in OUT.iterdir()))

@@ -75,6 +75,39 @@ def test_cli_ply_single_and_sequences(run, avatar, tmp_path, capsys):
     assert [p for p in _listing(tmp_path) if p.startswith(".")] == []
 
 
+def test_cli_writes_the_other_splat_layouts(run, avatar, tmp_path, capsys):
+    """A single pose as .spz, .splat and .compressed.ply (the name picks the layout), a sequence
+    as .spz files (--format): each reads back to the avatar's Gaussians within the layout's
+    quantisation, the y-down frame as stored (the compressed PLY names it, like our .ply) (tests/test_splat_formats.py checks the layouts against splat-transform)."""
+    from app.cli import main
+    from reconstruct.gaussian_files import read_gaussians
+    from reconstruct.ply import UP_ROTATION, read_gaussians_ply
+
+    for name in ("f1.spz", "f1.splat", "f1.compressed.ply", "f1.ply"):
+        assert main(["export", str(run), "--ply", str(tmp_path / name), "--frame", "1", "--quiet"]) == 0
+    assert main(["export", str(run), "--ply", str(tmp_path / "walk"), "--novel", "walk", "--frames", "3",
+                 "--format", "spz", "--quiet"]) == 0
+    assert "(3 frames, frame_0000.spz ...)" in capsys.readouterr().out
+    assert _listing(tmp_path / "walk") == [f"frame_{i:04d}.spz" for i in range(3)]
+    ref = read_gaussians_ply(tmp_path / "f1.ply")  # our frame (its comment says y_down)
+    means_y_down = ref.means.astype(np.float64) @ UP_ROTATION.T
+    sizes = {}
+    for name, tol in (("f1.spz", 3e-4), ("f1.splat", 1e-6), ("f1.compressed.ply", 2e-3)):
+        g = read_gaussians(tmp_path / name)
+        assert len(g) == len(ref)
+        # the compressed PLY keeps our comment, so it reads back in our frame like a .ply; the others as stored
+        assert g.up == ("y_down" if name.endswith(".ply") else None)
+        want = ref.means.astype(np.float64) if g.up else means_y_down
+        d = np.linalg.norm(g.means[:, None].astype(np.float64) - want[None], axis=-1)
+        j = d.argmin(1)
+        assert len(set(j)) == len(ref) and d.min(1).max() < tol, name
+        assert np.abs(g.colors - np.clip(ref.colors[j], 0, 1)).max() < 6e-3, name
+        assert np.abs(g.opacities - ref.opacities[j]).max() < 6e-3, name
+        sizes[name] = (tmp_path / name).stat().st_size
+    assert sizes["f1.spz"] * 8 < (tmp_path / "f1.ply").stat().st_size
+    assert len(read_gaussians(tmp_path / "walk" / "frame_0002.spz")) == len(ref)
+
+
 def test_cli_ply_errors_write_nothing(run, tmp_path, capsys):
     from app.cli import main
 
@@ -84,7 +117,10 @@ def test_cli_ply_errors_write_nothing(run, tmp_path, capsys):
         (["--ply", str(tmp_path / "a.ply"), "--frame", "7"], "frame 7 is out of range: the scene has 3 frames (0..2)"),
         (["--ply", str(tmp_path / "a.ply"), "--frame", "-1"], "frame -1 is out of range"),
         (["--ply", str(tmp_path / "seq.ply"), "--novel", "walk"], ("seq.ply: a pose sequence is written as one "
-                                                                   ".ply per frame into a folder")),
+                                                                   "file per frame into a folder")),
+        (["--ply", str(tmp_path / "seq.spz"), "--novel", "walk"], "give a folder name (without .spz)"),
+        (["--ply", str(tmp_path / "a.spz"), "--format", "splat"], "the name asks for 'spz', --format says 'splat'"),
+        (["--out", str(tmp_path / "a.gif"), "--orbit", "3", "--format", "spz"], "--format applies to --ply only"),
         (["--ply", str(tmp_path / "exists"), "--novel", "walk"], "already exists and is a folder (pass --overwrite"),
         (["--ply", str(tmp_path / "a.txt"), "--canonical"], "unsupported output type '.txt'"),
         (["--ply", str(tmp_path / "no" / "a.ply")], "the output folder"),

@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from reconstruct.compressed_ply import decode_compressed_ply
+from reconstruct.compressed_ply import decode_compressed_ply, encode_compressed_ply
 from reconstruct.gaussian_files import read_gaussians
 from reconstruct.ply import PlyFormatError, _parse_header, _vertex_table, read_gaussians_ply
 from reconstruct.splat_file import decode_splat, encode_splat
-from reconstruct.spz import decode_spz
+from reconstruct.spz import decode_spz, encode_spz
 
 DATA = Path(__file__).parent / "data" / "splats"
 FILES = ["source.compressed.ply", "source.spz", "source_v3.spz", "source.splat"]
@@ -80,6 +80,40 @@ def test_each_format_holds_the_source_within_its_quantisation(name):
             assert np.abs(cols[f"f_rest_{k}"] - src_cols[f"f_rest_{k}"][j]).max() < 0.035, k
 
 
+WRITTEN = {"ours.compressed.ply": lambda *a: encode_compressed_ply(*a), "ours_v3.spz": lambda *a: encode_spz(*a, version=3),
+           "ours_v4.spz": lambda *a: encode_spz(*a, version=4)}
+
+
+@pytest.mark.parametrize("name", sorted(WRITTEN))
+def test_our_writers_files_are_read_by_splat_transform_as_the_source(name):
+    """What our encoders write today reads as the stored file does; splat-transform (Niantic's
+    library for .spz) decoded the stored file to the source within the format's quantisation, and
+    our reader reads it exactly as splat-transform does."""
+    src = read_gaussians_ply(DATA / "source.ply")
+    fresh = WRITTEN[name](src.means, src.scales, src.rotations, src.opacities, src.colors)
+    p = DATA / name
+    cols_now = decode_spz(fresh, Path("fresh.spz"))[0] if name.endswith(".spz") else None
+    if cols_now is not None:
+        stored = decode_spz(p.read_bytes(), p)[0]
+        for k, v in stored.items():
+            np.testing.assert_array_equal(cols_now[k], v, err_msg=k)
+    else:
+        assert fresh == p.read_bytes()
+    theirs = read_gaussians_ply(DATA / (name.replace(".", "_") + ".decoded.ply"))
+    ours = read_gaussians(p)
+    np.testing.assert_allclose(ours.means, theirs.means, atol=1e-7)
+    np.testing.assert_allclose(ours.opacities, theirs.opacities, atol=1e-6)
+    np.testing.assert_allclose(ours.colors, theirs.colors, atol=1e-6)
+    assert _rot_diff(ours.rotations.astype(float), theirs.rotations.astype(float)) < 1e-6
+    d = np.linalg.norm(theirs.means[:, None].astype(float) - src.means[None].astype(float), axis=-1)
+    j = d.argmin(1)
+    assert len(set(j)) == len(src) and d.min(1).max() < 6e-4
+    assert np.abs(np.log(theirs.scales) - np.log(src.scales[j])).max() < 0.032
+    assert _rot_diff(theirs.rotations.astype(float), src.rotations[j].astype(float)) < 2e-3
+    assert np.abs(theirs.opacities - src.opacities[j]).max() < 2.5e-3
+    assert np.abs(theirs.colors - np.clip(src.colors[j], 0, 1)).max() < 4e-3
+
+
 def test_the_splat_writer_is_what_the_fixture_holds_and_round_trips():
     src = read_gaussians_ply(DATA / "source.ply")
     data = encode_splat(src.means, src.scales, src.rotations, src.opacities, src.colors)
@@ -125,3 +159,21 @@ def test_broken_files_are_refused_naming_the_file(tmp_path):
     refused("nochunk.ply", comp.replace(b"element chunk 2", b"element chonk 2", 1),
             r"nochunk\.ply: a compressed PLY needs a 'chunk' element")
     refused("other.bin", b"GIF89a" + bytes(40), r"other\.bin: not a Gaussian splat file this program reads")
+
+
+def test_an_infinite_opacity_logit_is_opacity_one_and_nan_is_refused(tmp_path):
+    """splat-transform decodes a compressed PLY's opacity byte 255 (what it and we write for
+    opacity 1) to a logit of +inf: such a PLY reads as opacity 1 (-inf as 0); NaN is refused."""
+    data = (DATA / "source.ply").read_bytes()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    table = np.frombuffer(data[end:], "<f4").reshape(300, 23).copy()
+    table[0, 15], table[1, 15] = np.inf, -np.inf  # opacity is the 16th property
+    p = tmp_path / "inf.ply"
+    p.write_bytes(data[:end] + table.tobytes())
+    g = read_gaussians(p)
+    assert g.opacities[0] == 1.0 and g.opacities[1] == 0.0 and np.all(np.isfinite(g.opacities))
+    table[2, 15] = np.nan
+    p.write_bytes(data[:end] + table.tobytes())
+    with pytest.raises(PlyFormatError, match=r"inf\.ply: non-finite values \(NaN or inf\) in vertex properties "
+                                             r"\{'opacity': 1\}"):
+        read_gaussians(p)
