@@ -14,8 +14,11 @@ not a project dependency, the tests read only the files this writes):
 3. ``joint_orient.fbx``: written by ``tests/fbx_files.write_fbx`` the way Maya and MotionBuilder
    write rigs (PreRotation on every joint, some PostRotation, rotation orders other than XYZ, a
    rotation pivot, an armature node turned and scaled above the skeleton).
-4. ``*.blender.npz``: for each FBX, Blender's import of it, sampled at every frame: each bone's head
-   in world space (Blender's Z-up scene) -- what the tests compare the project's reader with.
+4. ``root_bone.bvh``: the walk under a game rig's 'root' bone that walks and turns (the hips its
+   only child, with their own position channels).
+5. ``*.blender.npz``: for each FBX and ``root_bone.bvh``, Blender's import of it, sampled at every
+   frame: each bone's head in world space (Blender's Z-up scene) -- what the tests compare the
+   project's readers with.
 """
 
 from __future__ import annotations
@@ -65,6 +68,32 @@ def write_walk_bvh(path: Path, seed: int = 3) -> None:
             vals += list(rng.uniform(-35.0, 35.0, 3))
         lines.append(" ".join(f"{v:.6f}" for v in vals))
     path.write_text("\n".join(lines) + "\n")
+
+
+def write_root_bone_bvh(walk: Path, path: Path) -> None:
+    """``walk.bvh`` under a game rig's 'root' bone: a ROOT that walks and turns, the hips (with
+    their own position channels) its only child."""
+    lines = walk.read_text().splitlines()
+    motion = lines.index("MOTION")
+    head = ["HIERARCHY", "ROOT root", "{", "  OFFSET 0.000000 0.000000 0.000000",
+            "  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation"]
+    body = ["  " + ln.replace("ROOT Hips", "JOINT Hips") for ln in lines[1:motion]] + ["}"]
+    frames = []
+    for f, row in enumerate(lines[motion + 3:]):
+        root = [10.0 * f, 0.0, -6.0 * f, 0.0, 0.0, 12.0 * f]  # walks and turns about Y (the last channel)
+        frames.append(" ".join(f"{v:.6f}" for v in root) + " " + row)
+    path.write_text("\n".join(head + body + lines[motion:motion + 3] + frames) + "\n")
+
+
+def dump_bvh_import(bpy, bvh: Path) -> None:
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.import_anim.bvh(filepath=str(bvh), global_scale=0.01, rotate_mode="NATIVE", axis_forward="-Z",
+                            axis_up="Y", update_scene_fps=True, update_scene_duration=True)
+    arm = next(o for o in bpy.context.scene.objects if o.type == "ARMATURE")
+    names, heads = blender_heads(bpy, arm, range(1, FRAMES + 1))
+    np.savez(bvh.with_suffix(".blender.npz"), names=np.array(names), heads=heads,
+             fps=np.float64(bpy.context.scene.render.fps / bpy.context.scene.render.fps_base))
+    print(f"{bvh.name}: {len(names)} bones")
 
 
 def blender_heads(bpy, armature, frames: range) -> tuple[list[str], np.ndarray]:
@@ -125,6 +154,8 @@ def main() -> None:
     write_joint_orient_fbx(OUT / "joint_orient.fbx")
     for fbx in (OUT / "blender_walk.fbx", OUT / "joint_orient.fbx"):
         dump_import(bpy, fbx)
+    write_root_bone_bvh(bvh, OUT / "root_bone.bvh")
+    dump_bvh_import(bpy, OUT / "root_bone.bvh")
 
 
 if __name__ == "__main__":

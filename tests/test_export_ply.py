@@ -255,3 +255,13 @@ def test_sixty_frame_sequence_size_and_time(avatar, tmp_path):
     write_only = time.perf_counter() - t1
     print(f"\n[export --ply] 60-frame sequence, {n} Gaussians/frame: {size / 1e6:.2f} MB; export (posing + "
           f"writing) {total:.2f} s, writing alone {write_only:.3f} s ({write_only / 60 * 1e3:.1f} ms/frame)")
+
+
+def test_the_export_panels_file_field_follows_the_splat_format():
+    from app.studio.panels.export import _retarget_suffix
+
+    assert _retarget_suffix("exports/avatar.mp4", "ply_frame", "spz") == "exports/avatar.spz"
+    assert _retarget_suffix("exports/avatar.spz", "ply_frame", "compressed.ply") == "exports/avatar.compressed.ply"
+    assert _retarget_suffix("exports/avatar.compressed.ply", "ply_canonical", "ply") == "exports/avatar.ply"
+    assert _retarget_suffix("exports/avatar.compressed.ply", "ply_sequence", "spz") == "exports/avatar_frames"
+    assert _retarget_suffix("exports/avatar_frames", "orbit") == "exports/avatar.mp4"

@@ -112,6 +112,29 @@ def test_every_joint_is_where_blenders_import_puts_it(fixture):
         assert np.abs(X[:, [names.index(n) for n in pivoted]] @ R.T - Y[:, [names.index(n) for n in pivoted]]).max() > 1e-3
 
 
+def test_a_bvh_root_bone_is_read_as_the_armature_as_blender_places_it(anny_body):
+    """``root_bone.bvh``: the walk under a 'root' bone that walks 10 cm and turns 12 degrees a frame,
+    the hips its only child with their own position channels. The clip starts at the hips, the root
+    bone's motion carried into theirs, and every joint is where Blender's BVH import puts it."""
+    clip = load_motion(DATA / "root_bone.bvh")
+    plain = load_motion(DATA / "walk.bvh")
+    assert clip.skeleton.names == plain.skeleton.names and clip.skeleton.names[0] == "Hips"
+    assert "'root' above 'Hips' read as the armature: its motion is the root's" in clip.notes
+    assert not [n for n in clip.notes if "position channels" in n]  # the hips' own are the root path
+    ref = np.load(DATA / "root_bone.blender.npz")
+    names = [str(n) for n in ref["names"]]
+    _, P = clip.world()
+    idx = [clip.skeleton.names.index(n) for n in names if n != "root"]
+    X = P[:, idx] * clip.metres_per_unit
+    Y = ref["heads"][:, [names.index(n) for n in names if n != "root"]]
+    R = _kabsch(X.reshape(-1, 3), Y.reshape(-1, 3))
+    np.testing.assert_allclose(np.abs(R), np.round(np.abs(R)), atol=1e-6)
+    np.testing.assert_allclose(X @ R.T, Y, atol=2e-5)
+    # the same walk with the root bone's motion: the hips travel 10 cm a frame further along X
+    a, b = retarget(plain, anny_body), retarget(clip, anny_body)
+    assert not np.allclose([p.transl for p in a.poses], [p.transl for p in b.poses], atol=0.05)
+
+
 def test_the_joint_orient_fixture_is_what_the_writer_writes(tmp_path):
     """The stored file (written where Blender ran, with another numpy) is the writer's rig, record
     for record, up to the last digits of the trigonometry."""

@@ -44,8 +44,12 @@ EXPORT_SCRIPT = textwrap.dedent("""
     out = {out!r}
     result = {{}}
     state = {{"phase": 0}}
-    JOBS = [("ply_frame", out + "_frame1.ply"), ("ply_canonical", out + "_canonical.ply"),
-            ("ply_sequence", out + "_frames")]
+    JOBS = [("ply_frame", out + "_frame1.ply", "ply"), ("ply_canonical", out + "_canonical.ply", "ply"),
+            ("ply_frame", out + "_frame1.spz", "spz"), ("ply_sequence", out + "_spz_frames", "spz"),
+            ("ply_sequence", out + "_frames", "ply")]
+
+    def key(job):  # the result's name: the kind, and the format where it is not .ply
+        return job[0] if job[2] == "ply" else job[0] + "_" + job[2]
 
     def script(app):
         s, ex = app.status, app.export
@@ -62,14 +66,14 @@ EXPORT_SCRIPT = textwrap.dedent("""
             state["phase"] = 1
         elif 1 <= p <= len(JOBS) and (p == 1 or ex.job.done):
             if p > 1:
-                result[JOBS[p - 2][0]] = str(ex.job.result) if ex.job.result else ex.job.error
+                result[key(JOBS[p - 2])] = str(ex.job.result) if ex.job.result else ex.job.error
             e = ex.settings
-            e.kind, e.out = JOBS[p - 1]
+            e.kind, e.out, e.splat_format = JOBS[p - 1]
             result.setdefault("steps", []).append(s.step)
             app.start_export()
             state["phase"] = p + 1
         elif p == len(JOBS) + 1 and ex.job.done:
-            result[JOBS[-1][0]] = str(ex.job.result) if ex.job.result else ex.job.error
+            result[key(JOBS[-1])] = str(ex.job.result) if ex.job.result else ex.job.error
             result["sequence_total"] = ex.job.total
             result["steps"].append(s.step)
             app.request_screenshot(out + "_export_panel.png")
@@ -119,6 +123,14 @@ def test_export_panel_writes_ply_while_training(tmp_path):
     canon = read_gaussians_ply(r["ply_canonical"])
     assert any("space=canonical" in c for c in canon.comments) and len(canon) == len(frame)
     assert not np.allclose(canon.means, frame.means)  # posed vs canonical
+    from reconstruct.gaussian_files import read_gaussians
+
+    assert r["ply_frame_spz"] == out + "_frame1.spz" and r["ply_sequence_spz"] == out + "_spz_frames"
+    spz = read_gaussians(out + "_frame1.spz")  # the Export panel's .spz: the name picks the layout
+    assert len(spz) == len(frame) and spz.comments == ("spz version 3",)
+    spz_seq = sorted(Path(out + "_spz_frames").iterdir())
+    assert [p.name for p in spz_seq] == [f"frame_{i:04d}.spz" for i in range(3)]
+    assert len(read_gaussians(spz_seq[-1])) == len(frame)
     seq = sorted(Path(out + "_frames").iterdir())
     assert [p.name for p in seq] == [f"frame_{i:04d}.ply" for i in range(3)] == \
         [f"frame_{i:04d}.ply" for i in range(r["sequence_total"])]

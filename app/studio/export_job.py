@@ -56,6 +56,7 @@ class ExportSettings:
     motion_fps: float | None = None
     up: str = "y_down"  # .ply frame (docs/ply.md)
     overwrite: bool = False  # replace an existing .ply sequence folder
+    splat_format: str = "ply"  # a sequence's files: ply, compressed.ply, splat or spz (one file: its name's)
 
     @property
     def is_ply(self) -> bool:
@@ -212,7 +213,8 @@ class ExportJob:
 
         if self._cancel.is_set():
             raise _Cancelled()
-        write_ply_plan(plan, up=self.settings.up, progress=progress, overwrite=self.settings.overwrite)
+        write_ply_plan(plan, up=self.settings.up, progress=progress, overwrite=self.settings.overwrite,
+                       fmt=self.settings.splat_format if plan.sequence else None)
         self.result = plan.out
 
     def _put(self, q: queue.Queue, item) -> None:

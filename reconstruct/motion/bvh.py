@@ -16,6 +16,7 @@ import numpy as np
 
 from .axes import guess_metres_per_unit, skeleton_axes
 from .clip import MotionClip, MotionFileError, SourceSkeleton, read_motion_bytes
+from .rig_clip import first_branch, role_joints, wrapper_note
 from .roles import find_roles
 from .rotations import euler_to_matrix
 
@@ -229,23 +230,43 @@ def read_bvh(path: str | os.PathLike, *, up: str | None = None, forward: str | N
     J = len(joints)
     offsets = np.stack([j.offset for j in joints])
     local = np.broadcast_to(np.eye(3), (num_frames, J, 3, 3)).copy()
-    root = np.broadcast_to(offsets[0], (num_frames, 3)).copy()
+    pos = np.broadcast_to(offsets, (num_frames, J, 3)).copy()  # each joint's position in its parent
+    moves = np.zeros(J, bool)
     notes = []
     col = 0
-    moving_joints = []
     for ji, j in enumerate(joints):
         rot_cols, order = [], ""
         for kind, axis in j.channels:
             if kind == "R":
                 rot_cols.append(col)
                 order += "XYZ"[axis]
-            elif ji == 0:
-                root[:, axis] = values[:, col]
-            elif np.ptp(values[:, col]) > 1e-6 or abs(values[0, col] - j.offset[axis]) > 1e-6:
-                moving_joints.append(j.name)
+            else:
+                pos[:, ji, axis] = values[:, col]
+                moves[ji] |= np.ptp(values[:, col]) > 1e-6 or abs(values[0, col] - j.offset[axis]) > 1e-6
             col += 1
         if rot_cols:
             local[:, ji] = euler_to_matrix(values[:, rot_cols], order)
+    top, wrappers = first_branch(0, lambda i: [c for c, jc in enumerate(joints) if jc.parent == i],
+                                 role_joints(list(range(J)), [j.name for j in joints]))
+    if wrappers:  # an armature or root bone above the hips: its motion goes into the hips'
+        R, p = local[:, 0], pos[:, 0]
+        for i in wrappers[1:] + [top]:
+            p = p + np.einsum("tij,tj->ti", R, pos[:, i])
+            R = R @ local[:, i]
+        keep = [i for i in range(J) if i not in wrappers]
+        index = {old: new for new, old in enumerate(keep)}
+        rest_top = offsets[wrappers].sum(0) + offsets[top]
+        notes.append(wrapper_note([joints[i].name for i in wrappers], joints[top].name))
+        for i in keep[1:]:
+            joints[i].parent = index[joints[i].parent]
+        joints = [joints[i] for i in keep]
+        joints[0].parent = -1
+        offsets = np.concatenate([rest_top[None], offsets[keep[1:]]])
+        local = np.concatenate([R[:, None], local[:, keep[1:]]], 1)
+        pos = np.concatenate([p[:, None], pos[:, keep[1:]]], 1)
+        moves = moves[keep]
+    root = pos[:, 0]
+    moving_joints = [j.name for j, m in zip(joints[1:], moves[1:]) if m]
     if moving_joints:
         notes.append(f"position channels of {len(set(moving_joints))} non-root joints ignored "
                      f"({', '.join(sorted(set(moving_joints))[:6])}...): bone lengths are the avatar's")

@@ -33,7 +33,7 @@ import numpy as np
 
 from .clip import MotionClip, MotionFileError, read_motion_bytes
 from .fbx_binary import FbxNode, is_ascii_fbx, parse_fbx
-from .rig_clip import first_branch, rig_clip, varies, wrapper_note
+from .rig_clip import first_branch, rig_clip, role_joints, varies, wrapper_note
 from .rotations import euler_to_matrix
 
 TICKS_PER_SECOND = 46186158000
@@ -244,7 +244,8 @@ def _read_scene(path: Path, version: int, root: FbxNode, up: str | None, forward
     order = max((subtree(r) for r in roots), key=len)
     if len(order) < len(joints_set):
         notes.append(f"{len(joints_set) - len(order)} skeleton nodes outside the main skeleton's tree ignored")
-    top, wrappers = first_branch(order[0], lambda j: [c for c in children.get(j, []) if c in joints_set])
+    top, wrappers = first_branch(order[0], lambda j: [c for c in children.get(j, []) if c in joints_set],
+                                 role_joints(order, [models[m].name for m in order]))
     if wrappers:
         order = subtree(top)
         notes.append(wrapper_note([models[m].name for m in wrappers], models[top].name))

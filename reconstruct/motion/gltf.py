@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .clip import MotionClip, MotionFileError, read_motion_bytes
-from .rig_clip import first_branch, rig_clip, varies, wrapper_note
+from .rig_clip import first_branch, rig_clip, role_joints, varies, wrapper_note
 from .rotations import quat_to_matrix, slerp
 
 _COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
@@ -193,7 +193,8 @@ def read_gltf(path: str | os.PathLike, *, up: str | None = None, forward: str | 
     order = max((subtree(r) for r in roots), key=len)
     if len(order) < len(joints):
         notes.append(f"{len(joints) - len(order)} joints outside the main skeleton's tree ignored")
-    top, wrappers = first_branch(order[0], lambda j: [int(c) for c in nodes[j].get("children", []) if int(c) in in_skin])
+    top, wrappers = first_branch(order[0], lambda j: [int(c) for c in nodes[j].get("children", []) if int(c) in in_skin],
+                                 role_joints(order, [str(nodes[n].get("name") or f"node{n}") for n in order]))
     if wrappers:
         order = subtree(top)
         label = [str(nodes[n].get("name") or f"node{n}") for n in wrappers + [top]]

@@ -24,16 +24,26 @@ def rotation_part(M: np.ndarray) -> np.ndarray:
     return A / np.where(norms > 0, norms, 1.0)
 
 
-def first_branch(root, kids) -> tuple[object, list]:
+def first_branch(root, kids, keep=frozenset()) -> tuple[object, list]:
     """(the skeleton's working root, the joints above it): where a tree starts with a chain of
     single-child joints that ends in a joint with two or more children (an armature exported as a
     joint, a game rig's 'root' bone above the pelvis), that joint is the root and the chain goes
     above it with the armature, its motion carried into the root's; a tree that never branches keeps
-    its root. ``kids(j)``: j's child joints."""
+    its root. The chain stops at a joint in ``keep`` (one that plays a role, e.g. the hips), which
+    then is the root. ``kids(j)``: j's child joints."""
     path = [root]
-    while len(kids(path[-1])) == 1:
+    while path[-1] not in keep and len(kids(path[-1])) == 1:
         path.append(kids(path[-1])[0])
-    return (path[-1], path[:-1]) if len(kids(path[-1])) >= 2 else (root, [])
+    end = path[-1]
+    return (end, path[:-1]) if end in keep or len(kids(end)) >= 2 else (root, [])
+
+
+def role_joints(nodes, names) -> frozenset:
+    """The ``nodes`` (in the order of their ``names``) that play a role by name (``roles.py``):
+    never read as part of the armature."""
+    from .roles import find_roles
+
+    return frozenset(nodes[i] for i in find_roles(list(names), "bvh").values())
 
 
 def wrapper_note(wrappers: list[str], root: str) -> str:

@@ -1,6 +1,6 @@
 """Export panel: orbit / video poses / novel sequence / motion file videos with a progress bar, the
-Gaussians as 3DGS .ply (current frame, canonical space, or the Pose panel's sequence as a folder),
-screenshots."""
+Gaussians as 3DGS .ply, .compressed.ply, .splat or .spz (current frame, canonical space, or the Pose
+panel's sequence as a folder), screenshots."""
 
 from __future__ import annotations
 
@@ -11,18 +11,21 @@ from .common import error_text
 from .context import PanelContext
 
 UPS = (("y_down", "y down (viewers)"), ("z_up", "z up (ours)"))
+SPLAT_FORMATS = ("ply", "compressed.ply", "splat", "spz")
+SPLAT_SUFFIXES = tuple("." + f for f in SPLAT_FORMATS)
 
 
-def _retarget_suffix(out: str, kind: str) -> str:
-    """The file field after choosing ``kind``: .ply for one file, no suffix for a .ply folder,
-    .mp4/.gif kept (or .mp4) for videos."""
+def _retarget_suffix(out: str, kind: str, splat_format: str = "ply") -> str:
+    """The file field after choosing ``kind``: the splat format's suffix (.ply ...) for one file, no
+    suffix for a folder of them, .mp4/.gif kept (or .mp4) for videos."""
     low = out.lower()
-    stem = next((out[: -len(s)] for s in FORMATS + (".ply",) if low.endswith(s)), out)
+    known = FORMATS + (".compressed.ply", ".ply", ".splat", ".spz")  # the longer suffix first
+    stem = next((out[: -len(s)] for s in known if low.endswith(s)), out)
     if kind == "ply_sequence":
         return stem if stem.endswith("_frames") else stem + "_frames"
     stem = stem.removesuffix("_frames")
     if kind in PLY_KINDS:
-        return stem + ".ply"
+        return stem + "." + splat_format
     return stem + (".gif" if low.endswith(".gif") else ".mp4")
 
 
@@ -77,6 +80,12 @@ def _ply_settings(ui: PanelContext) -> None:
             imgui.same_line()
         if imgui.radio_button(label, e.up == up):
             e.up = up
+    for k, fmt in enumerate(SPLAT_FORMATS):  # .spz: about 20 times smaller than .ply, quantised
+        if k:
+            imgui.same_line()
+        if imgui.radio_button(fmt, e.splat_format == fmt):
+            e.splat_format = fmt
+            e.out = _retarget_suffix(e.out, e.kind, fmt)
 
 
 def draw(ui: PanelContext) -> None:
@@ -88,7 +97,7 @@ def draw(ui: PanelContext) -> None:
     ui.mark("export_kind")
     if ch:
         e.kind = KINDS[idx]
-        e.out = _retarget_suffix(e.out, e.kind)
+        e.out = _retarget_suffix(e.out, e.kind, e.splat_format)
     if e.is_ply:
         _ply_settings(ui)
     else:
