@@ -427,17 +427,25 @@ def test_fill_holes_fills_small_enclosed_holes_only():
     assert remove_others(out, others)[:, 60:].max() == 0 and remove_others(out, others)[50, 32] == 1.0
 
 
-def test_grow_is_the_euclidean_disc_dilation(tmp_path):
-    """``grabcut_refine.grow`` (a distance transform, linear in the image whatever the radius) keeps
-    exactly the pixels within the radius of the mask, against a brute-force float64 distance."""
+def _in_detector_python(tmp_path, name: str, body: str) -> dict:
+    """Runs ``body`` (Python that prints one JSON line last) with the detector's interpreter, the
+    prepare folder on its path (``grabcut_refine`` imports from there); skips without one."""
     python = detector_python()
     if python is None:
         pytest.skip("no Python with mediapipe/OpenCV")
-    script = tmp_path / "grow.py"
-    script.write_text(f"""
-import sys, json
-import numpy as np
-sys.path.insert(0, {str(Path(__file__).resolve().parents[1] / 'reconstruct' / 'data' / 'prepare')!r})
+    script = tmp_path / name
+    folder = str(Path(__file__).resolve().parents[1] / "reconstruct" / "data" / "prepare")
+    script.write_text(f"import sys, json\nimport numpy as np\nsys.path.insert(0, {folder!r})\n" + body)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    res = subprocess.run([python, str(script)], capture_output=True, text=True, env=env, timeout=120)
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_grow_is_the_euclidean_disc_dilation(tmp_path):
+    """``grabcut_refine.grow`` (a distance transform, linear in the image whatever the radius) keeps
+    exactly the pixels within the radius of the mask, against a brute-force float64 distance."""
+    r = _in_detector_python(tmp_path, "grow.py", """
 from grabcut_refine import grow
 rng = np.random.default_rng(1)
 bad = 0
@@ -450,25 +458,16 @@ for trial in range(6):
     d = np.sqrt((yy[..., None] - ys) ** 2 + (xx[..., None] - xs) ** 2).min(-1)
     for r in (1.0, 2.5, 7.0, 19.0):
         bad += int((grow(m, r) != (d <= r + 1e-9)).sum())
-print(json.dumps({{"bad": bad, "empty": int(grow(np.zeros((5, 5), bool), 3.0).sum())}}))
+print(json.dumps({"bad": bad, "empty": int(grow(np.zeros((5, 5), bool), 3.0).sum())}))
 """)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    res = subprocess.run([python, str(script)], capture_output=True, text=True, env=env, timeout=120)
-    assert res.returncode == 0, res.stderr
-    assert json.loads(res.stdout.strip().splitlines()[-1]) == {"bad": 0, "empty": 0}
+    assert r == {"bad": 0, "empty": 0}
 
 
 def test_grabcut_refinement_is_repeatable(tmp_path):
     """The same frame gives the same mask whatever OpenCV's generator did before (GrabCut's and
     k-means' starts draw from it: on this busy wall and patterned skirt two calls differed by 175 px)."""
-    python = detector_python()
-    if python is None:
-        pytest.skip("no Python with mediapipe/OpenCV")
-    script = tmp_path / "again.py"
-    script.write_text(f"""
-import sys, json
-import numpy as np, cv2
-sys.path.insert(0, {str(Path(__file__).resolve().parents[1] / 'reconstruct' / 'data' / 'prepare')!r})
+    r = _in_detector_python(tmp_path, "again.py", """
+import cv2
 from grabcut_refine import refine_mask
 H, W = 160, 120
 rng = np.random.default_rng(0)
@@ -478,31 +477,21 @@ img[80:140, 35:85] = rng.integers(150, 256, (60, 50, 3))                        
 truth = np.zeros((H, W), bool); truth[20:80, 45:75] = truth[80:140, 35:85] = True
 soft = truth.astype(np.float32) * 0.97; soft[100:135, 60:85] = 0.05
 kp = np.zeros((33, 2)); vis = np.zeros(33)
-for i, (x, y) in {{11: (70, 25), 12: (50, 25), 23: (66, 80), 24: (54, 80), 25: (67, 115), 26: (53, 115),
-                  27: (67, 150), 28: (53, 150)}}.items():
+for i, (x, y) in {11: (70, 25), 12: (50, 25), 23: (66, 80), 24: (54, 80), 25: (67, 115), 26: (53, 115),
+                  27: (67, 150), 28: (53, 150)}.items():
     kp[i] = (x, y); vis[i] = 1.0
 a, _ = refine_mask(img, soft, kp, vis)
 cv2.randu(np.zeros((50, 50)), 0, 1)
 b, _ = refine_mask(img, soft, kp, vis)
-print(json.dumps({{"differ": int((a != b).sum())}}))
+print(json.dumps({"differ": int((a != b).sum())}))
 """)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    res = subprocess.run([python, str(script)], capture_output=True, text=True, env=env, timeout=120)
-    assert res.returncode == 0, res.stderr
-    assert json.loads(res.stdout.strip().splitlines()[-1]) == {"differ": 0}
+    assert r == {"differ": 0}
 
 
 def test_grabcut_restores_a_bite_and_keeps_the_rest(tmp_path):
     """A light 'skirt' on a light background that the segmenter bit into: the refinement grows it back;
     a refinement that disagrees wildly falls back to the segmenter's mask."""
-    python = detector_python()
-    if python is None:
-        pytest.skip("no Python with mediapipe/OpenCV")
-    script = tmp_path / "check.py"
-    script.write_text(f"""
-import sys, json
-import numpy as np
-sys.path.insert(0, {str(Path(__file__).resolve().parents[1] / 'reconstruct' / 'data' / 'prepare')!r})
+    r = _in_detector_python(tmp_path, "check.py", """
 from grabcut_refine import refine_mask
 H, W = 160, 120
 img = np.zeros((H, W, 3), np.uint8); img[:] = (225, 225, 215)                  # light wall
@@ -516,20 +505,16 @@ img = np.clip(img.astype(int) + rng.integers(-6, 7, img.shape), 0, 255).astype(n
 soft = truth.astype(np.float32) * 0.97
 soft[100:135, 60:85] = 0.05                                                      # the bite
 kp = np.zeros((33, 2)); vis = np.zeros(33)
-for i, (x, y) in {{11: (70, 25), 12: (50, 25), 23: (66, 80), 24: (54, 80), 25: (67, 115), 26: (53, 115),
-                  27: (67, 150), 28: (53, 150)}}.items():
+for i, (x, y) in {11: (70, 25), 12: (50, 25), 23: (66, 80), 24: (54, 80), 25: (67, 115), 26: (53, 115),
+                  27: (67, 150), 28: (53, 150)}.items():
     kp[i] = (x, y); vis[i] = 1.0
 out, info = refine_mask(img, soft, kp, vis)
 iou = lambda a, b: float((a & b).sum() / (a | b).sum())
 raw2 = soft.copy()
 bad, info2 = refine_mask(img, raw2, kp, vis, min_agreement=1.01)  # any change counts as disagreeing
-print(json.dumps({{"before": iou(soft > 0.5, truth), "after": iou(out > 0.5, truth), "used": info["used"],
-                  "fallback_used": info2["used"], "fallback_is_raw": bool(np.array_equal(bad, raw2))}}))
+print(json.dumps({"before": iou(soft > 0.5, truth), "after": iou(out > 0.5, truth), "used": info["used"],
+                  "fallback_used": info2["used"], "fallback_is_raw": bool(np.array_equal(bad, raw2))}))
 """)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    res = subprocess.run([python, str(script)], capture_output=True, text=True, env=env, timeout=120)
-    assert res.returncode == 0, res.stderr
-    r = json.loads(res.stdout.strip().splitlines()[-1])
     assert r["used"] and r["before"] < 0.9 and r["after"] > 0.97, r
     assert not r["fallback_used"] and r["fallback_is_raw"]
 
