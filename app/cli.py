@@ -271,7 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="studio: where to train (default: a resumed run's own device, else cpu)")
     p.add_argument("--ply", dest="studio_ply", metavar="FILE", type=Path, default=None,
                    help="studio: view Gaussians without training: a 3DGS .ply (ours or any other program's), "
-                        "SuperSplat's .compressed.ply, a .splat or a .spz")
+                        "SuperSplat's .compressed.ply, a .splat, a .spz or a .sog")
     sub = p.add_subparsers(dest="command")
 
     s = sub.add_parser("synth", help="write a synthetic scene folder (body, clothing, motion, cameras, ground truth)")

@@ -1,8 +1,9 @@
 """One entry for Gaussian splat files of any layout this program knows: the 3DGS ``.ply`` (and
-PlayCanvas's compressed ``.ply``), antimatter15's ``.splat`` and Niantic's ``.spz``.
+PlayCanvas's compressed ``.ply``), antimatter15's ``.splat``, Niantic's ``.spz`` and PlayCanvas's
+SOG (``.sog`` or its ``meta.json``; read only).
 
 ``read_gaussians(path)`` picks the reader by the file's first bytes (``ply`` / gzip or ``NGSP``),
-and by its suffix for ``.splat`` (which has no header), and returns ``PlyGaussians`` as
+and by its name for ``.splat`` (which has no header) and SOG, and returns ``PlyGaussians`` as
 ``reconstruct.ply.read_gaussians_ply`` does, with the same checks. Errors are ``PlyFormatError``
 naming the file. ``write_gaussians(path, ...)`` writes the layout the name asks for
 (``splat_format``), atomically, in the ``up`` frame of ``write_gaussians_ply``.
@@ -26,7 +27,7 @@ from .ply import (
     write_gaussians_ply,
 )
 
-GAUSSIAN_SUFFIXES = (".ply", ".splat", ".spz")
+GAUSSIAN_SUFFIXES = (".ply", ".splat", ".spz")  # written; .sog and meta.json are read too
 FORMATS = ("ply", "compressed.ply", "splat", "spz")  # what write_gaussians writes, by file name
 
 
@@ -90,7 +91,12 @@ def read_gaussians(path) -> PlyGaussians:
         raise PlyFormatError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
     if head.startswith(b"ply\n") or head.startswith(b"ply\r\n"):
         return read_gaussians_ply(path)
+    from .sog import decode_sog, is_sog
     from .spz import decode_spz, is_spz
+
+    if is_sog(path, head):
+        cols, comments = decode_sog(path)
+        return gaussians_from_columns(cols, comments, path)
 
     data = path.read_bytes()
     if is_spz(data):
@@ -103,4 +109,4 @@ def read_gaussians(path) -> PlyGaussians:
     if path.suffix.lower() == ".ply":
         return read_gaussians_ply(path)  # names what is wrong with it
     raise PlyFormatError(f"{path}: not a Gaussian splat file this program reads: expected a 3DGS or compressed "
-                         f".ply, a .splat or a .spz (found {head!r} at its start)")
+                         f".ply, a .splat, a .spz or a .sog (found {head!r} at its start)")

@@ -9,8 +9,8 @@ Needs Node.js and ``npm install @playcanvas/splat-transform@3.7.0`` in a folder 
 
 1. ``source.ply``: 300 Gaussians (two of the compressed format's 256-blocks) with random means,
    log-scales, rotations, opacities, colours and degree-1 SH, written here as a plain 3DGS PLY.
-2. splat-transform converts it to ``source.compressed.ply``, ``source.spz`` (version 4, zstd) and
-   ``source_v3.spz`` (gzip); the project's encoders write ``source.splat``, ``ours.compressed.ply``,
+2. splat-transform converts it to ``source.compressed.ply``, ``source.spz`` (version 4, zstd),
+   ``source_v3.spz`` (gzip) and ``source.sog`` (SOG version 2, WebP images in a zip); the project's encoders write ``source.splat``, ``ours.compressed.ply``,
    ``ours_v3.spz`` and ``ours_v4.spz`` from it.
 3. splat-transform decodes each of them back to a plain PLY (``source_spz.decoded.ply`` ...): what
    the tests compare the project's readers with.
@@ -31,7 +31,7 @@ OUT = ROOT / "tests" / "data" / "splats"
 N = 300
 WRITTEN = ("ours.compressed.ply", "ours_v3.spz", "ours_v4.spz")  # by the project's encoders
 DECODED = {name: name.replace(".", "_") + ".decoded.ply"
-           for name in ("source.compressed.ply", "source.spz", "source_v3.spz", "source.splat") + WRITTEN}
+           for name in ("source.compressed.ply", "source.spz", "source_v3.spz", "source.splat", "source.sog") + WRITTEN}
 
 
 def write_source(path: Path, seed: int = 4) -> None:
@@ -71,6 +71,7 @@ def main() -> None:
     tool(str(src), str(OUT / "source.compressed.ply"))
     tool(str(src), str(OUT / "source.spz"))
     tool("--spz-version", "3", str(src), str(OUT / "source_v3.spz"))
+    tool("-g", "cpu", str(src), str(OUT / "source.sog"))  # SOG's k-means on the CPU
     g = read_gaussians_ply(src)
     arrays = (g.means, g.scales, g.rotations, g.opacities, g.colors)
     (OUT / "source.splat").write_bytes(encode_splat(*arrays))

@@ -4,8 +4,9 @@ PlayCanvas's splat-transform, which bundles Niantic's own .spz library.
 ``tests/data/splats`` was made by ``scripts/make_splat_fixtures.py``: a 300-Gaussian 3DGS PLY with
 degree-1 SH, converted by splat-transform to SuperSplat's compressed PLY and to .spz versions 4
 (zstd) and 3 (gzip), and written as .splat by our encoder; splat-transform then decoded each back
-to a plain PLY. Our reading of each file must equal splat-transform's decoding (float32 rounding),
-SH included, and the source within each format's quantisation.
+to a plain PLY; it also wrote the source as SOG (WebP images and meta.json in a zip). Our reading
+of each file must equal splat-transform's decoding (float32 rounding), SH included (SOG: the degree),
+and the source within each format's quantisation.
 """
 
 from __future__ import annotations
@@ -20,14 +21,16 @@ import pytest
 from reconstruct.compressed_ply import decode_compressed_ply, encode_compressed_ply
 from reconstruct.gaussian_files import read_gaussians
 from reconstruct.ply import PlyFormatError, _parse_header, _vertex_table, read_gaussians_ply
+from reconstruct.sog import decode_sog
 from reconstruct.splat_file import decode_splat, encode_splat
 from reconstruct.spz import decode_spz, encode_spz
 
 DATA = Path(__file__).parent / "data" / "splats"
-FILES = ["source.compressed.ply", "source.spz", "source_v3.spz", "source.splat"]
+FILES = ["source.compressed.ply", "source.spz", "source_v3.spz", "source.splat", "source.sog"]
 # each format's quantisation against the source: position (m), log-scale, rotation, opacity, colour
 STEPS = {"source.compressed.ply": (1e-3, 2e-3, 2e-3, 3e-3, 3e-3), "source.spz": (3e-4, 0.032, 2e-3, 3e-3, 5e-3),
-         "source_v3.spz": (3e-4, 0.032, 2e-3, 3e-3, 5e-3), "source.splat": (1e-6, 1e-6, 8e-3, 3e-3, 3e-3)}
+         "source_v3.spz": (3e-4, 0.032, 2e-3, 3e-3, 5e-3), "source.splat": (1e-6, 1e-6, 8e-3, 3e-3, 3e-3),
+         "source.sog": (1e-4, 0.01, 0.012, 5e-3, 3e-3)}
 
 
 def _columns(path: Path) -> dict[str, np.ndarray]:
@@ -36,6 +39,8 @@ def _columns(path: Path) -> dict[str, np.ndarray]:
         return decode_spz(data, path)[0]
     if path.suffix == ".splat":
         return decode_splat(data, path)
+    if path.suffix == ".sog":
+        return decode_sog(path)[0]
     header = _parse_header(data, path)
     cols, _ = _vertex_table(data, header, path)
     return decode_compressed_ply(data, header, cols, path) if "packed_position" in cols else cols
@@ -57,7 +62,7 @@ def test_each_format_reads_as_splat_transform_decodes_it(name):
     np.testing.assert_allclose(ours.opacities, ref.opacities, atol=1e-6)
     np.testing.assert_allclose(ours.colors, ref.colors, atol=1e-6)
     cols, ref_cols = _columns(DATA / name), _columns(DATA / (name.replace(".", "_") + ".decoded.ply"))
-    for k in range(9 if not name.endswith(".splat") else 0):  # the SH, channel order included
+    for k in range(9 if name.endswith((".ply", ".spz")) else 0):  # the SH, channel order included (SOG: degree only)
         np.testing.assert_allclose(cols[f"f_rest_{k}"], ref_cols[f"f_rest_{k}"], atol=1e-6, err_msg=f"f_rest_{k}")
 
 
@@ -123,6 +128,13 @@ def test_the_splat_writer_is_what_the_fixture_holds_and_round_trips():
 def test_spz_comments_and_the_studios_reader(tmp_path):
     assert read_gaussians(DATA / "source.spz").comments == ("spz version 4",)
     assert read_gaussians(DATA / "source_v3.spz").comments == ("spz version 3",)
+    assert read_gaussians(DATA / "source.sog").comments == ("sog version 2",)
+    import zipfile
+
+    with zipfile.ZipFile(DATA / "source.sog") as z:  # the folder form: meta.json beside its images
+        z.extractall(tmp_path / "sog")
+    folder = read_gaussians(tmp_path / "sog" / "meta.json")
+    np.testing.assert_array_equal(folder.means, read_gaussians(DATA / "source.sog").means)
     from app.studio.ply_source import read_ply_for_view
 
     for name in FILES:
@@ -159,6 +171,38 @@ def test_broken_files_are_refused_naming_the_file(tmp_path):
     refused("nochunk.ply", comp.replace(b"element chunk 2", b"element chonk 2", 1),
             r"nochunk\.ply: a compressed PLY needs a 'chunk' element")
     refused("other.bin", b"GIF89a" + bytes(40), r"other\.bin: not a Gaussian splat file this program reads")
+    import io
+    import json
+    import zipfile
+
+    def sog(name: str, change) -> bytes:
+        """source.sog with its meta.json changed by ``change(meta)`` (a member left out when it returns a name)."""
+        buf = io.BytesIO()
+        with zipfile.ZipFile(DATA / "source.sog") as src, zipfile.ZipFile(buf, "w") as dst:
+            meta = json.loads(src.read("meta.json"))
+            drop = change(meta)
+            for info in src.infolist():
+                if info.filename == "meta.json":
+                    dst.writestr("meta.json", json.dumps(meta))
+                elif info.filename != drop:
+                    dst.writestr(info, src.read(info))
+        return buf.getvalue()
+
+    refused("v1.sog", sog("v1", lambda m: m.pop("version")), r"v1\.sog: SOG version None; version 2")
+    refused("noquats.sog", sog("nq", lambda m: "quats.webp"), r"noquats\.sog: the archive has no 'quats\.webp'")
+    refused("many.sog", sog("many", lambda m: m.update(count=5000)),
+            r"many\.sog: 'means_l\.webp' holds \d+ texels, fewer than the 5000 Gaussians")
+    refused("book.sog", sog("book", lambda m: m["scales"].update(codebook=[0.0] * 10)),
+            r"book\.sog: meta.json scales\.codebook must hold 256 finite numbers")
+    refused("notzip.sog", b"PK\x03\x04" + bytes(40), r"notzip\.sog: not a \.sog archive")
+    folder = tmp_path / "outside"
+    folder.mkdir()
+    with zipfile.ZipFile(DATA / "source.sog") as z:
+        meta = json.loads(z.read("meta.json"))
+    meta["means"]["files"] = ["../secret.webp", "means_u.webp"]
+    (folder / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(PlyFormatError, match=r"meta\.json: meta\.json names '\.\./secret\.webp', outside its folder"):
+        read_gaussians(folder / "meta.json")
 
 
 def test_an_infinite_opacity_logit_is_opacity_one_and_nan_is_refused(tmp_path):

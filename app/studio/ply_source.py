@@ -63,7 +63,7 @@ def _stand_up(means, normals, rotations, up: str):
 
 
 def read_ply_for_view(path, foreign_up: str = "y_down") -> PlyInfo:
-    """Read ``path`` (any 3DGS or compressed .ply, .splat or .spz; ``reconstruct.gaussian_files``)
+    """Read ``path`` (any 3DGS or compressed .ply, .splat, .spz or .sog; ``reconstruct.gaussian_files``)
     for drawing. Raises ``PlyFormatError``
     (a ValueError naming the file, what was expected and found) for a malformed file."""
     import dataclasses
@@ -74,7 +74,7 @@ def read_ply_for_view(path, foreign_up: str = "y_down") -> PlyInfo:
     t0 = time.perf_counter()
     text = str(path).strip()
     if not text:
-        raise ValueError("no splat file given: type the path of a 3DGS .ply, .splat or .spz file")
+        raise ValueError("no splat file given: type the path of a 3DGS .ply, .splat, .spz or .sog file")
     path = Path(text).expanduser()
     if path.is_dir():
         raise PlyFormatError(f"{path}: is a folder; open one of its .ply files (e.g. {path / 'frame_0000.ply'})")

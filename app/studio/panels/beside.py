@@ -1,4 +1,4 @@
-"""Beside panel: Gaussians from a file (an earlier export, another program's .ply, .splat or .spz)
+"""Beside panel: Gaussians from a file (an earlier export, another program's .ply, .splat, .spz or .sog)
 drawn beside the live avatar, with the same render mode and camera; errors shown here, the live
 view untouched."""
 

@@ -45,7 +45,7 @@ def draw_file(ui: ViewerContext) -> None:
         wrapped_hint(loaded.summary())
     else:
         imgui.text_disabled("no file shown")
-    imgui.separator_text("open a .ply, .splat or .spz")
+    imgui.separator_text("open a .ply, .splat, .spz or .sog")
     ch, path = imgui.input_text("path##ply", f.path)
     ui.mark("ply_path")
     if ch:

@@ -1,0 +1,169 @@
+"""PlayCanvas's SOG (``.sog``, SuperSplat's web export): Gaussians as lossless WebP images plus a
+``meta.json``, in a zip archive (``.sog``) or a folder (``meta.json`` beside its images). Read as
+data: version 2, the layout SuperSplat and splat-transform write.
+
+Texel i of every image holds Gaussian i (row by row). ``meta.json`` gives the count and, per
+attribute, its images and how to decode them:
+
+- ``means``: two images, the low and high bytes of 16-bit values per axis between ``mins`` and
+  ``maxs`` of ``sign(x) log(1 + |x|)``, undone by ``sign(v) (exp(|v|) - 1)``;
+- ``quats``: the quaternion (w, x, y, z) without its largest component, whose index is the alpha
+  byte minus 252; the other three in order as bytes over [-1/√2, 1/√2];
+- ``scales``: three bytes indexing a 256-entry ``codebook`` of log standard deviations;
+- ``sh0``: three bytes indexing a ``codebook`` of degree-0 SH coefficients, alpha = the opacity;
+- ``shN`` (optional): a palette of higher-SH centroids and a 16-bit label per Gaussian (read for
+  the SH degree only: ours are view-independent).
+
+Archive members are read only by the names ``meta.json`` gives, each checked for size before it is
+unpacked; a folder's names may not leave it. Checked against splat-transform's own decoding
+(``tests/test_splat_formats.py``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+MAX_MEMBER = 1 << 30  # bytes unpacked from one archive member
+MAX_GAUSSIANS = 1 << 28
+SH_COEFFICIENTS = {0: 0, 1: 3, 2: 8, 3: 15}
+_OTHERS = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))  # the three stored components, by the largest's index
+
+
+def is_sog(path: Path, head: bytes) -> bool:
+    return path.name.lower() == "meta.json" or (path.suffix.lower() == ".sog" and head[:2] == b"PK")
+
+
+class _Files:
+    """The images and meta.json of a .sog archive or a meta.json folder."""
+
+    def __init__(self, path: Path) -> None:
+        from .ply import PlyFormatError
+
+        self.path, self.zip = path, None
+        if path.name.lower() != "meta.json":
+            try:
+                self.zip = zipfile.ZipFile(path)
+            except (zipfile.BadZipFile, OSError) as exc:
+                raise PlyFormatError(f"{path}: not a .sog archive ({exc})") from None
+
+    def read(self, name: str) -> bytes:
+        from .ply import PlyFormatError
+
+        if not isinstance(name, str) or not name:
+            raise PlyFormatError(f"{self.path}: meta.json names a file {name!r}")
+        if self.zip is not None:
+            try:
+                info = self.zip.getinfo(name)
+            except KeyError:
+                raise PlyFormatError(f"{self.path}: the archive has no {name!r}, which meta.json names") from None
+            if info.file_size > MAX_MEMBER:
+                raise PlyFormatError(f"{self.path}: {name!r} unpacks to {info.file_size} bytes, more than {MAX_MEMBER}")
+            with self.zip.open(info) as f:
+                data = f.read(MAX_MEMBER + 1)
+            if len(data) > MAX_MEMBER:
+                raise PlyFormatError(f"{self.path}: {name!r} unpacks to more than {MAX_MEMBER} bytes")
+            return data
+        folder = self.path.parent.resolve()
+        target = (folder / name).resolve()
+        if folder not in target.parents:
+            raise PlyFormatError(f"{self.path}: meta.json names {name!r}, outside its folder")
+        try:
+            return target.read_bytes()
+        except OSError as exc:
+            raise PlyFormatError(f"{self.path}: {name!r}, which meta.json names, cannot be read: {exc}") from None
+
+
+def _image(files: _Files, name: str, count: int) -> np.ndarray:
+    """(count, 4) uint8 RGBA texels of a lossless WebP, row by row."""
+    from PIL import Image, UnidentifiedImageError
+
+    from .ply import PlyFormatError
+
+    data = files.read(name)
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            if im.width * im.height > 4 * MAX_GAUSSIANS:
+                raise PlyFormatError(f"{files.path}: {name!r} is {im.width} x {im.height} pixels, too large")
+            rgba = np.asarray(im.convert("RGBA"), np.uint8).reshape(-1, 4)
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
+        raise PlyFormatError(f"{files.path}: {name!r} is not an image that can be read ({exc})") from None
+    if len(rgba) < count:
+        raise PlyFormatError(f"{files.path}: {name!r} holds {len(rgba)} texels, fewer than the {count} Gaussians")
+    return rgba[:count]
+
+
+def _codebook(meta: dict, key: str, path: Path) -> np.ndarray:
+    from .ply import PlyFormatError
+
+    book = np.asarray(meta[key].get("codebook", []), np.float64)
+    if book.shape != (256,) or not np.all(np.isfinite(book)):
+        raise PlyFormatError(f"{path}: meta.json {key}.codebook must hold 256 finite numbers, found {book.shape}")
+    return book
+
+
+def decode_sog(path: Path) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
+    """(the 3DGS columns, comments) of a ``.sog`` archive or a SOG ``meta.json``. Raises
+    ``PlyFormatError`` naming the file."""
+    from .compressed_ply import logit
+    from .ply import PlyFormatError
+
+    files = _Files(path)
+    try:
+        meta = json.loads(files.read("meta.json").decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise PlyFormatError(f"{path}: its meta.json is not JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise PlyFormatError(f"{path}: its meta.json is not an object")
+    version = meta.get("version")
+    if version != 2:
+        raise PlyFormatError(f"{path}: SOG version {version!r}; version 2 (SuperSplat, splat-transform 1.x and "
+                             f"later) is read; re-export the file")
+    try:
+        count = int(meta["count"])
+        files_of = {k: list(meta[k]["files"]) for k in ("means", "quats", "scales", "sh0")}
+        mins = np.asarray(meta["means"]["mins"], np.float64)
+        maxs = np.asarray(meta["means"]["maxs"], np.float64)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise PlyFormatError(f"{path}: meta.json lacks {exc} (count, means, quats, scales, sh0)") from None
+    if not 0 < count <= MAX_GAUSSIANS:
+        raise PlyFormatError(f"{path}: meta.json count {count}: expected 1 to {MAX_GAUSSIANS} Gaussians")
+    if mins.shape != (3,) or maxs.shape != (3,) or len(files_of["means"]) != 2:
+        raise PlyFormatError(f"{path}: meta.json means needs 3 mins, 3 maxs and 2 files")
+    lo, hi = (_image(files, n, count) for n in files_of["means"])
+    out = {}
+    for k, axis in enumerate("xyz"):
+        v = (lo[:, k].astype(np.float64) + 256.0 * hi[:, k]) / 65535.0
+        v = mins[k] + (maxs[k] - mins[k]) * v
+        out[axis] = np.sign(v) * np.expm1(np.abs(v))
+    quats = _image(files, files_of["quats"][0], count)
+    tag = quats[:, 3].astype(np.int64) - 252
+    abc = (quats[:, :3].astype(np.float64) / 255.0 * 2.0 - 1.0) / math.sqrt(2.0)
+    q = np.zeros((count, 4))
+    valid = (tag >= 0) & (tag <= 3)
+    for largest, others in enumerate(_OTHERS):
+        sel = valid & (tag == largest)
+        q[np.ix_(sel, others)] = abc[sel]
+        q[sel, largest] = np.sqrt(np.maximum(0.0, 1.0 - (abc[sel] ** 2).sum(1)))
+    q[~valid] = (1.0, 0.0, 0.0, 0.0)
+    for k in range(4):
+        out[f"rot_{k}"] = q[:, k]
+    scales = _image(files, files_of["scales"][0], count)
+    book = _codebook(meta, "scales", path)
+    sh0 = _image(files, files_of["sh0"][0], count)
+    colours = _codebook(meta, "sh0", path)
+    for k in range(3):
+        out[f"scale_{k}"] = book[scales[:, k]]
+        out[f"f_dc_{k}"] = colours[sh0[:, k]]
+    out["opacity"] = logit(sh0[:, 3].astype(np.float64) / 255.0)
+    bands = int((meta.get("shN") or {}).get("bands", 0) or 0)
+    if bands not in SH_COEFFICIENTS:
+        raise PlyFormatError(f"{path}: meta.json shN.bands {bands}: 0-3 are read")
+    for k in range(3 * SH_COEFFICIENTS[bands]):  # the degree only: higher SH are not drawn here
+        out[f"f_rest_{k}"] = np.zeros(count)
+    return out, (f"sog version {version}",)
