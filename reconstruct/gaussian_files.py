@@ -83,6 +83,8 @@ def write_gaussians(path, means, scales, rotations, opacities, colors, normals=N
 
 
 def read_gaussians(path) -> PlyGaussians:
+    """The Gaussians of a 3DGS or compressed ``.ply``, ``.splat``, ``.spz`` or SOG file (see the
+    module docstring); ``PlyFormatError`` naming the file for one that cannot be read."""
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -97,7 +99,6 @@ def read_gaussians(path) -> PlyGaussians:
     if is_sog(path, head):
         cols, comments = decode_sog(path)
         return gaussians_from_columns(cols, comments, path)
-
     data = path.read_bytes()
     if is_spz(data):
         cols, comments = decode_spz(data, path)
