@@ -363,7 +363,7 @@ def build_parser() -> argparse.ArgumentParser:
     out = s.add_argument_group("output (one of)")
     out.add_argument("--out", type=Path, default=None, help="video file (.mp4 or .gif)")
     out.add_argument("--ply", type=Path, default=None, metavar="OUT",
-                     help="Gaussians: OUT.ply (3DGS), OUT.compressed.ply, OUT.splat or OUT.spz for one pose (--frame F, "
+                     help="Gaussians: OUT.ply (3DGS), OUT.compressed.ply, OUT.splat, OUT.spz or OUT.sog for one pose (--frame F, "
                           "default 0, or --canonical); a new folder for a sequence (--poses, --novel, --motion): "
                           "OUT/frame_0000.ply ... (--format for the others; docs/ply.md)")
     s.add_argument("--size", type=int, default=512, help="frame size in pixels (longer side for --poses)")
@@ -382,7 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_.add_argument("--sh-degree", type=int, default=3, choices=[0, 1, 2, 3],
                     help="SH degree of the file (higher coefficients are zero; 3 is what viewers expect)")
     p_.add_argument("--overwrite", action="store_true", help="replace an existing sequence folder")
-    p_.add_argument("--format", default=None, choices=["ply", "compressed.ply", "splat", "spz"],
+    p_.add_argument("--format", default=None, choices=["ply", "compressed.ply", "splat", "spz", "sog"],
                     help="layout of a sequence's files (default ply; .spz is about 20 times smaller, quantised); "
                          "a single file's name picks its own")
     s.add_argument("--quiet", action="store_true", help="no progress bar")

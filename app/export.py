@@ -28,7 +28,7 @@ VIDEO_SUFFIXES = (".mp4", ".gif")
 IMAGE_SUFFIXES = (".png",)
 SUPPORTED_SUFFIXES = VIDEO_SUFFIXES + IMAGE_SUFFIXES
 PLY_SUFFIX = ".ply"
-SPLAT_SUFFIXES = (".ply", ".splat", ".spz")  # one pose: the name picks the layout (NAME.compressed.ply too)
+SPLAT_SUFFIXES = (".ply", ".splat", ".spz", ".sog")  # one pose: the name picks the layout (NAME.compressed.ply too)
 
 
 # ----------------------------------------------------------------------------- destination checks
@@ -382,7 +382,7 @@ class PlyPlan:
 
 
 def check_ply_destination(out_path, *, sequence: bool, overwrite: bool = False) -> Path:
-    """A splat file name (``.ply``, ``.compressed.ply``, ``.splat``, ``.spz``) in a writable folder,
+    """A splat file name (``.ply``, ``.compressed.ply``, ``.splat``, ``.spz``, ``.sog``) in a writable folder,
     or (``sequence``) a new folder name there."""
     out = Path(out_path)
     if not sequence:
@@ -465,7 +465,7 @@ class _LazySnapshots:
 def write_ply_plan(plan: PlyPlan, *, up: str = "y_down", sh_degree: int = 3, progress: bool | Callable = True,
                    overwrite: bool = False, fmt: str | None = None) -> Path:
     """Write ``plan`` (``reconstruct.ply``: atomically, a sequence all or nothing). ``fmt``: the
-    layout of a sequence's files ("ply" by default, "compressed.ply", "splat", "spz"; a single
+    layout of a sequence's files ("ply" by default, "compressed.ply", "splat", "spz", "sog"; a single
     file's name picks its own, and a ``fmt`` that disagrees with it is an error). ``progress``:
     a tqdm bar (True), none (False), or a ``progress(done, total)`` callable. Returns ``plan.out``."""
     from reconstruct.gaussian_files import FORMATS, splat_format

@@ -1,6 +1,6 @@
 """One entry for Gaussian splat files of any layout this program knows: the 3DGS ``.ply`` (and
 PlayCanvas's compressed ``.ply``), antimatter15's ``.splat``, Niantic's ``.spz`` and PlayCanvas's
-SOG (``.sog`` or its ``meta.json``; read only).
+SOG (``.sog``, or its ``meta.json`` in a folder to read).
 
 ``read_gaussians(path)`` picks the reader by the file's first bytes (``ply`` / gzip or ``NGSP``),
 and by its name for ``.splat`` (which has no header) and SOG, and returns ``PlyGaussians`` as
@@ -27,13 +27,13 @@ from .ply import (
     write_gaussians_ply,
 )
 
-GAUSSIAN_SUFFIXES = (".ply", ".splat", ".spz")  # written; .sog and meta.json are read too
-FORMATS = ("ply", "compressed.ply", "splat", "spz")  # what write_gaussians writes, by file name
+GAUSSIAN_SUFFIXES = (".ply", ".splat", ".spz", ".sog")  # a SOG's meta.json is read too
+FORMATS = ("ply", "compressed.ply", "splat", "spz", "sog")  # what write_gaussians writes, by file name
 
 
 def splat_format(path) -> str:
-    """The layout a file name asks for: 'compressed.ply' (``NAME.compressed.ply``), 'ply', 'splat'
-    or 'spz'; ValueError for another suffix."""
+    """The layout a file name asks for: 'compressed.ply' (``NAME.compressed.ply``), 'ply', 'splat',
+    'spz' or 'sog'; ValueError for another suffix."""
     name = Path(path).name.lower()
     if name.endswith(".compressed.ply"):
         return "compressed.ply"
@@ -41,15 +41,15 @@ def splat_format(path) -> str:
     if suffix in GAUSSIAN_SUFFIXES:
         return suffix[1:]
     raise ValueError(f"{path}: unsupported splat file type {suffix or '(no suffix)'!r}; supported: .ply, "
-                     f".compressed.ply, .splat, .spz")
+                     f".compressed.ply, .splat, .spz, .sog")
 
 
 def write_gaussians(path, means, scales, rotations, opacities, colors, normals=None, *, up: str = "y_down",
                     sh_degree: int = 3, comments=()) -> Path:
     """Write Gaussians (arrays as ``write_gaussians_ply`` takes them) in the layout ``path`` names:
     the 3DGS ``.ply`` (``sh_degree``, normals, comments), SuperSplat's ``.compressed.ply``
-    (comments), ``.splat`` or ``.spz`` (version 3, gzip: what every reader takes); the last three
-    quantise (``docs/ply.md``) and hold no normals and no higher SH. Atomic: a failure leaves the
+    (comments), ``.splat``, ``.spz`` (version 3, gzip: what every reader takes) or ``.sog``; the last
+    four quantise (``docs/ply.md``) and hold no normals and no higher SH. Atomic: a failure leaves the
     previous file or none."""
     fmt = splat_format(path)
     if fmt == "ply":
@@ -72,6 +72,10 @@ def write_gaussians(path, means, scales, rotations, opacities, colors, normals=N
         from .splat_file import encode_splat
 
         data = encode_splat(*arrays)
+    elif fmt == "sog":
+        from .sog import encode_sog
+
+        data = encode_sog(*arrays)
     else:
         from .spz import encode_spz
 

@@ -167,3 +167,80 @@ def decode_sog(path: Path) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
     for k in range(3 * SH_COEFFICIENTS[bands]):  # the degree only: higher SH are not drawn here
         out[f"f_rest_{k}"] = np.zeros(count)
     return out, (f"sog version {version}",)
+
+
+def _codebook_of(values: np.ndarray, k: int = 256, iterations: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """(a sorted 1-D codebook of ``k`` entries, each value's nearest entry as uint8): quantiles,
+    refined by a few Lloyd steps."""
+    v = np.asarray(values, np.float64).ravel()
+    book = np.quantile(v, (np.arange(k) + 0.5) / k)
+    for _ in range(iterations):
+        cuts = (book[1:] + book[:-1]) / 2
+        label = np.searchsorted(cuts, v)
+        sums = np.bincount(label, v, minlength=k)
+        counts = np.bincount(label, minlength=k)
+        book = np.where(counts > 0, sums / np.maximum(counts, 1), book)
+        book = np.sort(book)
+    label = np.searchsorted((book[1:] + book[:-1]) / 2, v)
+    return book, label.astype(np.uint8).reshape(np.shape(values))
+
+
+def _webp(rgba: np.ndarray, width: int, height: int) -> bytes:
+    from PIL import Image
+
+    texels = np.zeros((width * height, 4), np.uint8)
+    texels[: len(rgba)] = rgba
+    buf = io.BytesIO()
+    # lossless, and exact: the colour under an alpha of 0 (a transparent Gaussian) is data too
+    Image.fromarray(texels.reshape(height, width, 4), "RGBA").save(buf, "WEBP", lossless=True, quality=100,
+                                                                   method=4, exact=True)
+    return buf.getvalue()
+
+
+def encode_sog(means, scales, rotations, opacities, colors) -> bytes:
+    """A ``.sog`` archive (version 2, no higher SH) of Gaussians (N,3 means, N,3 standard
+    deviations, N,4 wxyz rotations, N opacities, N,3 colours in [0, 1]), put in Morton order."""
+    from .compressed_ply import morton_order
+    from .ply import C0
+
+    means = np.asarray(means, np.float64)
+    n = len(means)
+    if n == 0:
+        raise ValueError("a .sog file needs at least one Gaussian")
+    order = morton_order(means)
+    means = means[order]
+    width = int(math.ceil(math.sqrt(n)))
+    height = int(math.ceil(n / width))
+    logged = np.sign(means) * np.log1p(np.abs(means))
+    lo_, hi_ = logged.min(0), logged.max(0)
+    q16 = np.round((logged - lo_) / np.where(hi_ > lo_, hi_ - lo_, 1.0) * 65535.0).astype(np.int64)
+    opaque = np.full((n, 1), 255, np.uint8)
+    means_l = np.concatenate([(q16 & 255).astype(np.uint8), opaque], 1)
+    means_u = np.concatenate([(q16 >> 8).astype(np.uint8), opaque], 1)
+    q = np.asarray(rotations, np.float64)[order]
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    largest = np.abs(q).argmax(1)
+    q = q * np.where(q[np.arange(n), largest] < 0, -1.0, 1.0)[:, None]
+    quats = np.zeros((n, 4), np.uint8)
+    for m, others in enumerate(_OTHERS):
+        sel = largest == m
+        quats[sel, :3] = np.clip(np.round((q[np.ix_(sel, others)] * math.sqrt(2.0) + 1.0) / 2.0 * 255.0), 0, 255)
+        quats[sel, 3] = 252 + m
+    scale_book, scale_label = _codebook_of(np.log(np.maximum(np.asarray(scales, np.float64)[order], 1e-30)))
+    f_dc = (np.clip(np.asarray(colors, np.float64)[order], 0.0, 1.0) - 0.5) / C0
+    colour_book, colour_label = _codebook_of(f_dc)
+    alpha = np.clip(np.round(np.asarray(opacities, np.float64)[order] * 255.0), 0, 255).astype(np.uint8)
+    images = {"means_l.webp": means_l, "means_u.webp": means_u, "quats.webp": quats,
+              "scales.webp": np.concatenate([scale_label, opaque], 1),
+              "sh0.webp": np.concatenate([colour_label, alpha[:, None]], 1)}
+    meta = {"version": 2, "asset": {"generator": "WonderHuman Studio"}, "count": n,
+            "means": {"mins": lo_.tolist(), "maxs": hi_.tolist(), "files": ["means_l.webp", "means_u.webp"]},
+            "scales": {"codebook": scale_book.tolist(), "files": ["scales.webp"]},
+            "quats": {"files": ["quats.webp"]},
+            "sh0": {"codebook": colour_book.tolist(), "files": ["sh0.webp"]}}
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as z:  # the images are compressed already
+        for name, rgba in images.items():
+            z.writestr(zipfile.ZipInfo(name, (1980, 1, 1, 0, 0, 0)), _webp(rgba, width, height))
+        z.writestr(zipfile.ZipInfo("meta.json", (1980, 1, 1, 0, 0, 0)), json.dumps(meta))
+    return buf.getvalue()

@@ -11,7 +11,7 @@ Needs Node.js and ``npm install @playcanvas/splat-transform@3.7.0`` in a folder 
    log-scales, rotations, opacities, colours and degree-1 SH, written here as a plain 3DGS PLY.
 2. splat-transform converts it to ``source.compressed.ply``, ``source.spz`` (version 4, zstd),
    ``source_v3.spz`` (gzip) and ``source.sog`` (SOG version 2, WebP images in a zip); the project's encoders write ``source.splat``, ``ours.compressed.ply``,
-   ``ours_v3.spz`` and ``ours_v4.spz`` from it.
+   ``ours_v3.spz``, ``ours_v4.spz`` and ``ours.sog`` from it.
 3. splat-transform decodes each of them back to a plain PLY (``source_spz.decoded.ply`` ...): what
    the tests compare the project's readers with.
 """
@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 OUT = ROOT / "tests" / "data" / "splats"
 N = 300
-WRITTEN = ("ours.compressed.ply", "ours_v3.spz", "ours_v4.spz")  # by the project's encoders
+WRITTEN = ("ours.compressed.ply", "ours_v3.spz", "ours_v4.spz", "ours.sog")  # by the project's encoders
 DECODED = {name: name.replace(".", "_") + ".decoded.ply"
            for name in ("source.compressed.ply", "source.spz", "source_v3.spz", "source.splat", "source.sog") + WRITTEN}
 
@@ -60,6 +60,7 @@ def main() -> None:
     from reconstruct.compressed_ply import encode_compressed_ply
     from reconstruct.ply import read_gaussians_ply
     from reconstruct.splat_file import encode_splat
+    from reconstruct.sog import encode_sog
     from reconstruct.spz import encode_spz
 
     def tool(*argv):
@@ -78,6 +79,7 @@ def main() -> None:
     (OUT / "ours.compressed.ply").write_bytes(encode_compressed_ply(*arrays))
     (OUT / "ours_v3.spz").write_bytes(encode_spz(*arrays, version=3))
     (OUT / "ours_v4.spz").write_bytes(encode_spz(*arrays, version=4))
+    (OUT / "ours.sog").write_bytes(encode_sog(*arrays))
     for name in DECODED:
         tool(str(OUT / name), str(OUT / DECODED[name]))
     print(sorted(p.name for p in OUT.iterdir()))

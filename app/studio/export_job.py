@@ -56,7 +56,7 @@ class ExportSettings:
     motion_fps: float | None = None
     up: str = "y_down"  # .ply frame (docs/ply.md)
     overwrite: bool = False  # replace an existing .ply sequence folder
-    splat_format: str = "ply"  # a sequence's files: ply, compressed.ply, splat or spz (one file: its name's)
+    splat_format: str = "ply"  # a sequence's files: ply, compressed.ply, splat, spz or sog (one file: its name's)
 
     @property
     def is_ply(self) -> bool:
