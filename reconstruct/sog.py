@@ -1,6 +1,7 @@
 """PlayCanvas's SOG (``.sog``, SuperSplat's web export): Gaussians as lossless WebP images plus a
 ``meta.json``, in a zip archive (``.sog``) or a folder (``meta.json`` beside its images). Read as
-data: version 2, the layout SuperSplat and splat-transform write.
+data: version 2, the layout SuperSplat and splat-transform write; ``encode_sog`` writes it (without
+higher SH).
 
 Texel i of every image holds Gaussian i (row by row). ``meta.json`` gives the count and, per
 attribute, its images and how to decode them:
