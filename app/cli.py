@@ -142,6 +142,7 @@ def _cmd_export(args) -> int:
         check_destination,
         check_motion_times,
         check_ply_destination,
+        check_splat_format,
         export_novel,
         export_orbit,
         export_poses,
@@ -173,14 +174,9 @@ def _cmd_export(args) -> int:
         raise ValueError(f"--fps must be positive, found {args.fps}")
     # before any loading or rendering: the destination, then the motion file
     if args.ply is not None:
-        single = what in ("frame", "canonical")
-        check_ply_destination(args.ply, sequence=not single, overwrite=args.overwrite)
-        if single and args.format is not None:
-            from reconstruct.gaussian_files import splat_format
-
-            if splat_format(args.ply) != args.format:
-                raise ValueError(f"{args.ply}: the name asks for {splat_format(args.ply)!r}, --format says "
-                                 f"{args.format!r}; name the file NAME.{args.format}")
+        sequence = what not in ("frame", "canonical")
+        check_ply_destination(args.ply, sequence=sequence, overwrite=args.overwrite)
+        check_splat_format(args.ply, args.format, sequence=sequence)
     elif args.format is not None:
         raise ValueError("--format applies to --ply only")
     else:
@@ -357,15 +353,15 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument("--novel", metavar="NAME", help="a novel pose sequence: walk (a walk cycle) or arms_up, "
                                                       "seen from the video's first training camera")
     what.add_argument("--motion", metavar="FILE", type=Path,
-                      help="a motion file (.bvh, .fbx, .glb/.gltf, SMPL/SMPL-H/SMPL-X .npz) retargeted onto the avatar, "
-                           "starting where the video's first frame stands (docs/motion.md)")
+                      help="a motion file (.bvh, .fbx, .glb/.gltf, SMPL/SMPL-H/SMPL-X .npz) retargeted onto the "
+                           "avatar, starting where the video's first frame stands (docs/motion.md)")
     what.add_argument("--canonical", action="store_true", help="--ply: the Gaussians in the canonical space")
     out = s.add_argument_group("output (one of)")
     out.add_argument("--out", type=Path, default=None, help="video file (.mp4 or .gif)")
     out.add_argument("--ply", type=Path, default=None, metavar="OUT",
-                     help="Gaussians: OUT.ply (3DGS), OUT.compressed.ply, OUT.splat, OUT.spz or OUT.sog for one pose (--frame F, "
-                          "default 0, or --canonical); a new folder for a sequence (--poses, --novel, --motion): "
-                          "OUT/frame_0000.ply ... (--format for the others; docs/ply.md)")
+                     help="Gaussians: OUT.ply (3DGS), OUT.compressed.ply, OUT.splat, OUT.spz or OUT.sog for one "
+                          "pose (--frame F, default 0, or --canonical); a new folder for a sequence (--poses, "
+                          "--novel, --motion): OUT/frame_0000.ply ... (--format for the others; docs/ply.md)")
     s.add_argument("--size", type=int, default=512, help="frame size in pixels (longer side for --poses)")
     s.add_argument("--fps", type=float, default=None,
                    help="frames per second (default 30 for --orbit, the scene's otherwise; --motion is resampled to it)")

@@ -27,7 +27,6 @@ from reconstruct.atomic import atomic_output
 VIDEO_SUFFIXES = (".mp4", ".gif")
 IMAGE_SUFFIXES = (".png",)
 SUPPORTED_SUFFIXES = VIDEO_SUFFIXES + IMAGE_SUFFIXES
-PLY_SUFFIX = ".ply"
 SPLAT_SUFFIXES = (".ply", ".splat", ".spz", ".sog")  # one pose: the name picks the layout (NAME.compressed.ply too)
 
 
@@ -462,20 +461,29 @@ class _LazySnapshots:
         return (self.plan.snapshot(i) for i in range(len(self.plan)))
 
 
+def check_splat_format(out_path, fmt: str | None, *, sequence: bool) -> None:
+    """ValueError for a ``fmt`` that is not a splat layout, or that disagrees with a single file's
+    name (which picks its own layout)."""
+    from reconstruct.gaussian_files import FORMATS, splat_format
+
+    if fmt is None:
+        return
+    if fmt not in FORMATS:
+        raise ValueError(f"splat file format must be one of {', '.join(FORMATS)}, found {fmt!r}")
+    if not sequence and splat_format(out_path) != fmt:
+        raise ValueError(f"{out_path}: the name asks for {splat_format(out_path)!r}, the format given is {fmt!r}; "
+                         f"name the file NAME.{fmt}")
+
+
 def write_ply_plan(plan: PlyPlan, *, up: str = "y_down", sh_degree: int = 3, progress: bool | Callable = True,
                    overwrite: bool = False, fmt: str | None = None) -> Path:
     """Write ``plan`` (``reconstruct.ply``: atomically, a sequence all or nothing). ``fmt``: the
     layout of a sequence's files ("ply" by default, "compressed.ply", "splat", "spz", "sog"; a single
     file's name picks its own, and a ``fmt`` that disagrees with it is an error). ``progress``:
     a tqdm bar (True), none (False), or a ``progress(done, total)`` callable. Returns ``plan.out``."""
-    from reconstruct.gaussian_files import FORMATS, splat_format
     from reconstruct.ply import UP_CHOICES, write_ply_sequence, write_snapshot_ply
 
-    if fmt is not None and fmt not in FORMATS:
-        raise ValueError(f"splat file format must be one of {', '.join(FORMATS)}, found {fmt!r}")
-    if fmt is not None and not plan.sequence and splat_format(plan.out) != fmt:
-        raise ValueError(f"{plan.out}: the name asks for {splat_format(plan.out)!r}, the format given is {fmt!r}; "
-                         f"name the file NAME.{fmt}")
+    check_splat_format(plan.out, fmt, sequence=plan.sequence)
     if up not in UP_CHOICES:
         raise ValueError(f"up must be one of {', '.join(UP_CHOICES)}, found {up!r}")
     if sh_degree not in (0, 1, 2, 3):
@@ -536,8 +544,9 @@ def export_novel(avatar, out_path, name: str = "walk", *, frames: int = 30, size
 def export_motion(avatar, out_path, motion, *, fps: float | None = None, start: float | None = None,
                   end: float | None = None, loop: bool = False, size: int | None = 512, camera=None, mode="rgb",
                   background=(0, 0, 0), progress: bool = True) -> Path:
-    """A motion file (``.bvh``, ``.fbx``, ``.glb`` / ``.gltf``, SMPL-family ``.npz``; or ``MotionPoses`` already retargeted)
-    performed by the avatar, from the video's first training camera; see ``motion_poses``."""
+    """A motion file (``.bvh``, ``.fbx``, ``.glb`` / ``.gltf``, SMPL-family ``.npz``; or ``MotionPoses``
+    already retargeted) performed by the avatar, from the video's first training camera; see
+    ``motion_poses``."""
     mode = _check_mode(mode)
     check_destination(out_path, suffixes=VIDEO_SUFFIXES)
     if not isinstance(motion, MotionPoses):

@@ -181,7 +181,8 @@ def encode_spz(means, scales, rotations, opacities, colors, *, version: int = 3,
     for j in range(4):  # the other three in order, the last in the low bits (the reader takes them from there)
         keep = largest != j
         v = xyzw[:, j]
-        bits = (np.where(v < 0, 1, 0) << 9) | np.clip(np.round(np.abs(v) / math.sqrt(0.5) * 511), 0, 511).astype(np.int64)
+        magnitude = np.clip(np.round(np.abs(v) / math.sqrt(0.5) * 511), 0, 511).astype(np.int64)
+        bits = (np.where(v < 0, 1, 0) << 9) | magnitude
         packed = np.where(keep, (packed << 10) | bits, packed)
     packed |= largest.astype(np.int64) << 30
     rotation_bytes = packed.astype("<u4").tobytes()

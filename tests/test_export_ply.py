@@ -119,7 +119,7 @@ def test_cli_ply_errors_write_nothing(run, tmp_path, capsys):
         (["--ply", str(tmp_path / "seq.ply"), "--novel", "walk"], ("seq.ply: a pose sequence is written as one "
                                                                    "file per frame into a folder")),
         (["--ply", str(tmp_path / "seq.spz"), "--novel", "walk"], "give a folder name (without .spz)"),
-        (["--ply", str(tmp_path / "a.spz"), "--format", "splat"], "the name asks for 'spz', --format says 'splat'"),
+        (["--ply", str(tmp_path / "a.spz"), "--format", "splat"], "the name asks for 'spz', the format given is 'splat'"),
         (["--out", str(tmp_path / "a.gif"), "--orbit", "3", "--format", "spz"], "--format applies to --ply only"),
         (["--ply", str(tmp_path / "exists"), "--novel", "walk"], "already exists and is a folder (pass --overwrite"),
         (["--ply", str(tmp_path / "a.txt"), "--canonical"], "unsupported output type '.txt'"),
