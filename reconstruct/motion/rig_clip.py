@@ -5,6 +5,9 @@ above the skeleton (an armature turned to Y up, scaled from centimetres) that pl
 With R0 the rest world rotations and L(t) a joint's animated local rotation, the clip's local
 rotation is ``R0_parent L(t) R0_joint^T`` (identity at rest), and a joint's offset is its rest world
 position less its parent's; the root's parent is the nodes above it as they stand in each frame.
+
+Also what the FBX, glTF and BVH readers share: which joints above the first branch are the
+armature (``first_branch``, ``role_joints``), and whether a baked channel moves at all (``varies``).
 """
 
 from __future__ import annotations
@@ -48,7 +51,8 @@ def role_joints(nodes, names) -> frozenset:
 
 def wrapper_note(wrappers: list[str], root: str) -> str:
     names = ", ".join(repr(n) for n in wrappers)
-    return f"{names} above {root!r} read as the armature: {'its' if len(wrappers) == 1 else 'their'} motion is the root's"
+    whose = "its" if len(wrappers) == 1 else "their"
+    return f"{names} above {root!r} read as the armature: {whose} motion is the root's"
 
 
 def varies(values) -> bool:
