@@ -226,3 +226,26 @@ def test_an_infinite_opacity_logit_is_opacity_one_and_nan_is_refused(tmp_path):
     with pytest.raises(PlyFormatError, match=r"inf\.ply: non-finite values \(NaN or inf\) in vertex properties "
                                              r"\{'opacity': 1\}"):
         read_gaussians(p)
+
+
+def test_a_version_2_spz_reads_like_version_3():
+    """splat-transform writes only versions 3-4; a version 2 file (rotations as x, y, z bytes with
+    w >= 0 derived, as Niantic's first release wrote them) is built here from the version 3 file's
+    columns and reads to the same Gaussians: x, y, z within half an 8-bit step, w from them."""
+    v3 = gzip.decompress((DATA / "source_v3.spz").read_bytes())
+    n = struct.unpack_from("<I", v3, 8)[0]
+    sizes = [n * 9, n, n * 3, n * 3]
+    head = 16 + sum(sizes)
+    ref = read_gaussians(DATA / "source_v3.spz")
+    q = ref.rotations.astype(np.float64)
+    q = q * np.where(q[:, :1] < 0, -1.0, 1.0)  # w >= 0
+    xyz = np.clip(np.round((q[:, 1:] + 1.0) * 127.5), 0, 255).astype(np.uint8)
+    v2 = bytearray(v3[:head]) + xyz.tobytes()
+    v2[4:8] = struct.pack("<I", 2)
+    v2[12] = 0  # no SH columns in this one
+    cols, comments = decode_spz(gzip.compress(bytes(v2)), Path("v2.spz"))
+    assert comments == ("spz version 2",)
+    ours = np.stack([cols[f"rot_{k}"] for k in range(4)], 1)
+    assert np.abs(ours[:, 1:] - q[:, 1:]).max() <= 0.5 / 127.5 + 1e-9  # x, y, z within half a step
+    np.testing.assert_allclose(ours[:, 0], np.sqrt(np.maximum(0.0, 1.0 - (ours[:, 1:] ** 2).sum(1))))  # w derived
+    np.testing.assert_array_equal(np.stack([cols[a] for a in "xyz"], 1).astype(np.float32), ref.means)
