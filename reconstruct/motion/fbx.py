@@ -15,7 +15,9 @@ parsed by ``fbx_binary`` (no FBX SDK, nothing run); this module reads its scene:
   ``Lcl Rotation`` / ``Lcl Scaling`` curve node's X, Y, Z curves (key times in FBX ticks,
   46186158000 per second), sampled at the file's frame rate (``GlobalSettings`` ``TimeMode``, else
   the keys' spacing) between the first and last key: linearly, or held for constant keys; each Euler
-  angle is interpolated on its own, as the SDK does. Channels without a curve keep the model's value.
+  angle is interpolated on its own, as the SDK does. Cubic keys are read linearly between them
+  (exact at the keys: Mixamo bakes a key per frame, Blender writes linear keys even when it thins
+  them). Channels without a curve keep the model's value.
 
 The rest pose is the file's bind pose (the skinning rest, written with a skinned mesh), else the
 models' own (non-animated) transform values -- which some exporters (Blender's among them) set to
