@@ -265,3 +265,15 @@ def test_the_export_panels_file_field_follows_the_splat_format():
     assert _retarget_suffix("exports/avatar.compressed.ply", "ply_canonical", "ply") == "exports/avatar.ply"
     assert _retarget_suffix("exports/avatar.compressed.ply", "ply_sequence", "spz") == "exports/avatar_frames"
     assert _retarget_suffix("exports/avatar_frames", "orbit") == "exports/avatar.mp4"
+
+
+def test_dropped_files_are_sorted_by_name():
+    from app.studio.drops import drop_kind, not_taken
+
+    for name in ("walk.bvh", "Mixamo Run.FBX", "a.glb", "a.gltf", "amass.npz"):
+        assert drop_kind(f"/x/{name}") == "motion", name
+    for name in ("avatar.ply", "a.compressed.ply", "a.splat", "a.SPZ", "a.sog", "sog/meta.json"):
+        assert drop_kind(f"/x/{name}") == "splat", name
+    for name in ("notes.txt", "clip.mp4", "folder", "a.pkl"):
+        assert drop_kind(f"/x/{name}") == "other", name
+    assert "notes.txt: dropped, but neither a motion file (.bvh" in not_taken("notes.txt")

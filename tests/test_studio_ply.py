@@ -34,6 +34,9 @@ def _red_pixels(path) -> int:
     return int(((img[..., 0] > 200) & (img[..., 1] < 160) & (img[..., 2] < 150)).sum())
 
 
+DROPPED_BVH = ROOT / "tests" / "data" / "fbx" / "walk.bvh"
+DROPPED_SPZ = ROOT / "tests" / "data" / "splats" / "source.spz"
+
 EXPORT_SCRIPT = textwrap.dedent("""
     import json, sys
     sys.path.insert(0, {root!r})
@@ -94,6 +97,17 @@ EXPORT_SCRIPT = textwrap.dedent("""
         elif p == 12 and app.frame_count >= state["wait"]:
             app.request_screenshot(out + "_beside.png")
             result["error"] = s.error
+            # files dropped on the window: a motion file, a splat file, something else
+            app.drops.paths.extend([{walk!r}, {spz!r}])
+            state["phase"] = 13
+        elif p == 13 and not app.view.motion.loading and app.view.beside.job is None:
+            m, b = app.view.motion, app.view.beside
+            result["dropped"] = {{"motion": m.loaded and m.loaded.name, "motion_message": m.message,
+                                 "beside": b.loaded and b.loaded.name, "source": app.view.pose_source}}
+            app.drops.paths.append(out + "_notes.txt")
+            state["phase"] = 14
+        elif p == 14:
+            result["dropped"]["beside_message"] = app.view.beside.message
             app.close()
         result["phase"] = state["phase"]
 
@@ -110,11 +124,12 @@ def test_export_panel_writes_ply_while_training(tmp_path):
 
     out = str(tmp_path / "studio")
     script = tmp_path / "studio_ply_export.py"
-    script.write_text(EXPORT_SCRIPT.format(root=str(ROOT), out=out, scene=SCENE))
+    script.write_text(EXPORT_SCRIPT.format(root=str(ROOT), out=out, scene=SCENE, walk=str(DROPPED_BVH),
+                                           spz=str(DROPPED_SPZ)))
     proc = _xvfb(script, tmp_path)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     r = json.loads(Path(out + ".json").read_text())
-    assert r["rc"] == 0 and r["phase"] == 12 and r["error"] is None, r
+    assert r["rc"] == 0 and r["phase"] == 14 and r["error"] is None, r
     assert r["bad_job"] is False and "does not exist" in r["bad_message"], r
     assert r["bad_suffix"] is False and "'.txt'" in r["bad_suffix_message"] and ".ply" in r["bad_suffix_message"]
     assert not Path(out + "_missing").exists() and not Path(out + "_frame1.ply.txt").exists()
@@ -141,6 +156,9 @@ def test_export_panel_writes_ply_while_training(tmp_path):
     assert "_missing.ply" in r["beside_missing"] and "cannot be read" in r["beside_missing"], r["beside_missing"]
     b = r["beside"]
     assert b["name"] == "studio_canonical.ply" and b["message"] is None and b["n_drawn"] == 2 * b["n_live"], b
+    d = r["dropped"]  # the motion file went to the Pose panel, the .spz beside, the .txt is a message
+    assert d["motion"] == "walk.bvh" and d["source"] == "motion" and d["beside"] == "source.spz", d
+    assert "_notes.txt: dropped, but neither a motion file" in d["beside_message"], d
 
 
 @pytest.fixture(scope="module")
@@ -225,7 +243,20 @@ VIEWER_SCRIPT = textwrap.dedent("""
             result["height_z_foreign"] = float(app.snapshot.means[:, 2].max() - app.snapshot.means[:, 2].min())
             app.request_screenshot(out + "_foreign.png")
             state["phase"] = 6
-        elif p == 6:
+        elif p == 6:  # a splat file dropped on the viewer opens: called as GLFW calls the drop callback
+            import ctypes
+            import glfw
+
+            addr = ctypes.cast(ctypes.pointer(app.window), ctypes.POINTER(ctypes.c_long)).contents.value
+            _, c_callback = glfw._window_drop_callback_repository[addr]
+            c_callback(app.window, 1, (ctypes.c_char_p * 1)({spz!r}.encode()))
+            state["phase"] = 7
+        elif p == 7 and f.job is None:
+            result["dropped"] = f.loaded.name
+            app.drops.paths.append(out + "_walk.bvh")  # the viewer opens splat files only
+            state["phase"] = 8
+        elif p == 8:
+            result["dropped_other"] = f.message
             app.close()
         result["phase"] = state["phase"]
 
@@ -241,12 +272,13 @@ def test_viewer_shows_ours_and_foreign_files_and_reports_a_broken_one(tmp_path, 
     out = str(tmp_path / "viewer")
     script = tmp_path / "viewer.py"
     script.write_text(VIEWER_SCRIPT.format(root=str(ROOT), out=out, ply=str(ours), foreign=str(foreign),
-                                           broken=str(broken)))
+                                           broken=str(broken), spz=str(DROPPED_SPZ)))
     proc = _xvfb(script, tmp_path)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     r = json.loads(Path(out + ".json").read_text())
     print("\n[viewer]", json.dumps(r, indent=1))
-    assert r["rc"] == 0 and r["phase"] == 6, r
+    assert r["rc"] == 0 and r["phase"] == 8, r
+    assert r["dropped"] == "source.spz" and "dropped, but neither" in r["dropped_other"], r
     assert r["first"]["name"] == "avatar.ply" and r["first"]["up"] == "y_down" and r["first"]["n"] > 100
     assert 1.2 < r["height_z"] < 2.2  # stood up: the body's height is along +Z again
     assert "broken.ply" in r["broken_message"] and "truncated" in r["broken_message"]

@@ -25,6 +25,7 @@ from .layout import draw_panels
 from .orbit_input import apply_mouse
 from .pacing import FramePacer
 from .panels.viewer import VIEWER_PANELS, ViewerContext
+from .drops import DropQueue, drop_kind, not_taken
 from .ply_source import PlyFileState, read_ply_for_view
 from .window import SCENE_ERROR_RC, _error_loop, _save_png, compose_frame, gui_window
 
@@ -41,6 +42,8 @@ class ViewerApp:
         from renderer.splat_renderer import SplatRenderer
 
         self.window = window
+        self.drops = DropQueue()
+        self.drops.install(glfw, window)
         self.ctx = ctx
         self.pacer = pacer or FramePacer()
         self.renderer = SplatRenderer(ctx, target_dtype="f4")
@@ -76,6 +79,14 @@ class ViewerApp:
             return False
         self.file.start(path)
         return True
+
+    def handle_drops(self, paths=None) -> None:
+        """Files dropped on the window: the last splat file dropped opens; others are a message."""
+        for path in self.drops.take() if paths is None else paths:
+            if drop_kind(path) == "splat":
+                self.open_ply(path)
+            else:
+                self.file.message = not_taken(path) + " (the viewer opens splat files)"
 
     def poll_file(self) -> None:
         job = self.file.job
@@ -158,6 +169,7 @@ class ViewerApp:
         imgui.new_frame()
         if script is not None:
             script(self)
+        self.handle_drops()
         self.poll_file()
         self.handle_input()
         if self.show_gui:

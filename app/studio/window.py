@@ -42,6 +42,7 @@ import glfw
 from renderer.render_modes import RenderMode
 
 from . import edit_input, panels
+from .drops import DropQueue, drop_kind, not_taken
 from .edit_controller import EditController
 from .export_job import ExportJob, ExportPanelState
 from .footage import FootageController
@@ -99,6 +100,8 @@ class StudioApp:
         from renderer.splat_renderer import SplatRenderer
 
         self.window = window
+        self.drops = DropQueue()
+        self.drops.install(glfw, window)
         self.ctx = ctx
         self.trainer = trainer
         self.run_lock = run_lock  # the run folder's lock while the window trains into it
@@ -371,6 +374,19 @@ class StudioApp:
         f.start(path)
         return True
 
+    def handle_drops(self, paths=None) -> None:
+        """Files dropped on the window (``paths``, default the queue): a motion file opens in the Pose
+        panel, a splat file beside the avatar; anything else is a message in the Beside panel."""
+        for path in self.drops.take() if paths is None else paths:
+            kind = drop_kind(path)
+            if kind == "motion":
+                self.open_motion(path)
+            elif kind == "splat":
+                self.view.show_beside = True
+                self.open_beside_ply(path)
+            else:
+                self.view.beside.message = not_taken(path)
+
     def clear_beside_ply(self) -> None:
         self.view.beside.loaded = None
         self.view.beside.message = None
@@ -507,6 +523,7 @@ class StudioApp:
         imgui.new_frame()
         if script is not None:
             script(self)
+        self.handle_drops()
         self.poll_motion()
         self.poll_beside()
         self.footage.poll()
