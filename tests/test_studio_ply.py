@@ -100,7 +100,7 @@ EXPORT_SCRIPT = textwrap.dedent("""
             # files dropped on the window: a motion file, a splat file, something else
             app.drops.paths.extend([{walk!r}, {spz!r}])
             state["phase"] = 13
-        elif p == 13 and not app.view.motion.loading and app.view.beside.job is None:
+        elif p == 13 and app.view.motion.job is None and app.view.beside.job is None:  # both read and taken
             m, b = app.view.motion, app.view.beside
             result["dropped"] = {{"motion": m.loaded and m.loaded.name, "motion_message": m.message,
                                  "beside": b.loaded and b.loaded.name, "source": app.view.pose_source}}
