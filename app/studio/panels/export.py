@@ -80,12 +80,12 @@ def _ply_settings(ui: PanelContext) -> None:
             imgui.same_line()
         if imgui.radio_button(label, e.up == up):
             e.up = up
-    for k, fmt in enumerate(SPLAT_FORMATS):  # .spz: about 20 times smaller than .ply, quantised
-        if k:
-            imgui.same_line()
-        if imgui.radio_button(fmt, e.splat_format == fmt):
-            e.splat_format = fmt
-            e.out = _retarget_suffix(e.out, e.kind, fmt)
+    # .spz and .sog: about 20 times smaller than .ply, quantised (a combo: five radio buttons overflow)
+    ch, idx = imgui.combo("format", SPLAT_FORMATS.index(e.splat_format), list(SPLAT_FORMATS))
+    ui.mark("export_splat_format")
+    if ch:
+        e.splat_format = SPLAT_FORMATS[idx]
+        e.out = _retarget_suffix(e.out, e.kind, e.splat_format)
 
 
 def draw(ui: PanelContext) -> None:
