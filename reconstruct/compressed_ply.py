@@ -24,6 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .ply import C0, PlyFormatError, element_table, opacity_logit
+from .smallest_three import drop_largest, restore_largest
+
 CHUNK = 256
 _SQRT2 = math.sqrt(2.0)
 CHUNK_BOUNDS = ("min_x", "min_y", "min_z", "max_x", "max_y", "max_z", "min_scale_x", "min_scale_y", "min_scale_z",
@@ -40,16 +43,9 @@ def _lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
     return a * (1.0 - t) + b * t
 
 
-def logit(alpha: np.ndarray, eps: float = 1e-6) -> np.ndarray:
-    a = np.clip(alpha, eps, 1.0 - eps)
-    return np.log(a / (1.0 - a))
-
-
 def decode_compressed_ply(data: bytes, header, vertex: dict[str, np.ndarray], path: Path) -> dict[str, np.ndarray]:
     """The 3DGS columns (x.., f_dc_*, f_rest_*, opacity, scale_*, rot_*) of a compressed PLY whose
     vertex columns are ``vertex``. Raises ``PlyFormatError`` naming the file."""
-    from .ply import C0, PlyFormatError, element_table
-
     names = [e.name for e in header.elements]
     missing = [p for p in PACKED if p not in vertex]
     if missing or "chunk" not in names:
@@ -78,16 +74,8 @@ def decode_compressed_ply(data: bytes, header, vertex: dict[str, np.ndarray], pa
     for k, (axis, shift, bits) in enumerate((("x", 21, 11), ("y", 11, 10), ("z", 0, 11))):
         out[f"scale_{k}"] = _lerp(c[f"min_scale_{axis}"], c[f"max_scale_{axis}"], _unorm(ps, shift, bits))
     pr = words["packed_rotation"]
-    three = [(_unorm(pr, shift, 10) - 0.5) * _SQRT2 for shift in (20, 10, 0)]
-    largest = (pr >> np.uint32(30)).astype(np.int64)
-    rest = np.sqrt(np.maximum(0.0, 1.0 - sum(v * v for v in three)))
-    q = np.zeros((n, 4))
-    for idx in range(4):
-        sel = largest == idx
-        others = [j for j in range(4) if j != idx]
-        q[sel, idx] = rest[sel]
-        for j, v in zip(others, three):
-            q[sel, j] = v[sel]
+    three = np.stack([(_unorm(pr, shift, 10) - 0.5) * _SQRT2 for shift in (20, 10, 0)], 1)
+    q = restore_largest((pr >> np.uint32(30)).astype(np.int64), three)
     for k in range(4):
         out[f"rot_{k}"] = q[:, k]
     pc = words["packed_color"]
@@ -96,7 +84,7 @@ def decode_compressed_ply(data: bytes, header, vertex: dict[str, np.ndarray], pa
     for k, ch in enumerate("rgb"):
         value = _lerp(c[f"min_{ch}"], c[f"max_{ch}"], rgb[k]) if has_colour_bounds else rgb[k]
         out[f"f_dc_{k}"] = (value - 0.5) / C0
-    out["opacity"] = logit(_unorm(pc, 0, 8))
+    out["opacity"] = opacity_logit(_unorm(pc, 0, 8))
     if "sh" in names:
         sh = element_table(data, header, "sh", path)
         for key, b in sh.items():
@@ -135,8 +123,7 @@ def encode_compressed_ply(means, scales, rotations, opacities, colors, comments=
     order = morton_order(means) if len(means) else np.zeros(0, np.int64)
     means = means[order]
     logs = np.clip(np.log(np.maximum(np.asarray(scales, np.float64)[order], 1e-30)), -20.0, 20.0)
-    q = np.asarray(rotations, np.float64)[order]
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    largest, three = drop_largest(np.asarray(rotations, np.float64)[order])
     colours = np.clip(np.asarray(colors, np.float64)[order], 0.0, 1.0)
     alpha = np.clip(np.asarray(opacities, np.float64)[order], 0.0, 1.0)
     n = len(means)
@@ -155,15 +142,8 @@ def encode_compressed_ply(means, scales, rotations, opacities, colors, comments=
     position = (_pack(t[:, 0], 11) << 21) | (_pack(t[:, 1], 10) << 11) | _pack(t[:, 2], 11)
     t = _span(logs, c[:, 6:9], c[:, 9:12])
     scale = (_pack(t[:, 0], 11) << 21) | (_pack(t[:, 1], 10) << 11) | _pack(t[:, 2], 11)
-    largest = np.abs(q).argmax(1)
-    q = q * np.where(q[np.arange(n), largest] < 0, -1.0, 1.0)[:, None]
-    rotation = largest.astype(np.uint32) << 30
-    shift = np.full(n, 20)
-    for j in range(4):  # the other three in order, from the high bits down
-        keep = largest != j
-        word = _pack(q[:, j] / _SQRT2 + 0.5, 10)
-        rotation = np.where(keep, rotation | (word << shift.astype(np.uint32)), rotation)
-        shift = np.where(keep, shift - 10, shift)
+    words = _pack(three / _SQRT2 + 0.5, 10)  # the other three in order, from the high bits down
+    rotation = (largest.astype(np.uint32) << 30) | (words[:, 0] << 20) | (words[:, 1] << 10) | words[:, 2]
     t = _span(colours, c[:, 12:15], c[:, 15:18])
     colour = (_pack(t[:, 0], 8) << 24) | (_pack(t[:, 1], 8) << 16) | (_pack(t[:, 2], 8) << 8) | _pack(alpha, 8)
     names = [f"{m}_{a}" for m in ("min", "max") for a in "xyz"] + [f"{m}_scale_{a}" for m in ("min", "max")

@@ -17,12 +17,12 @@ import numpy as np
 
 from .atomic import atomic_output
 from .ply import (
-    C0,
+    MIN_SCALE,
+    OPACITY_EPS,
     PlyFormatError,
     PlyGaussians,
-    gaussian_rows,
+    checked_gaussians,
     gaussians_from_columns,
-    property_names,
     read_gaussians_ply,
     write_gaussians_ply,
 )
@@ -55,15 +55,10 @@ def write_gaussians(path, means, scales, rotations, opacities, colors, normals=N
     if fmt == "ply":
         return write_gaussians_ply(path, means, scales, rotations, opacities, colors, normals, up=up,
                                    sh_degree=sh_degree, comments=comments)
-    table = gaussian_rows(means, scales, rotations, opacities, colors, normals, up=up, sh_degree=0).astype(np.float64)
-    col = {name: k for k, name in enumerate(property_names(0))}
-
-    def take(*names):
-        return table[:, [col[n] for n in names]]
-
-    arrays = (take("x", "y", "z"), np.exp(take("scale_0", "scale_1", "scale_2")),
-              take("rot_0", "rot_1", "rot_2", "rot_3"), 1.0 / (1.0 + np.exp(-table[:, col["opacity"]])),
-              np.clip(0.5 + C0 * take("f_dc_0", "f_dc_1", "f_dc_2"), 0.0, 1.0))
+    means, scales, rotations, opacities, colors, _ = checked_gaussians(means, scales, rotations, opacities,
+                                                                       colors, normals, up=up)
+    arrays = (means, np.maximum(scales, MIN_SCALE), rotations, np.clip(opacities, OPACITY_EPS, 1.0 - OPACITY_EPS),
+              np.clip(colors, 0.0, 1.0))
     if fmt == "compressed.ply":
         from .compressed_ply import encode_compressed_ply
 

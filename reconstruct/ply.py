@@ -111,14 +111,19 @@ def _as_rows(name: str, value, n: int | None, width: int | None) -> np.ndarray:
     return a
 
 
-def gaussian_rows(means, scales, rotations, opacities, colors, normals=None, *, up: str = "y_down",
-                  sh_degree: int = 3) -> np.ndarray:
-    """The (N, P) float32 table of vertex properties, in ``property_names`` order (see the module
-    docstring for the encodings). Raises ValueError for wrong shapes, NaN/inf or zero quaternions."""
+def opacity_logit(opacities, eps: float = OPACITY_EPS) -> np.ndarray:
+    """The logit of opacities, clamped to [eps, 1 - eps] first (an opacity of exactly 1 or 0 has an
+    infinite logit)."""
+    p = np.clip(np.asarray(opacities, np.float64), eps, 1.0 - eps)
+    return np.log(p / (1.0 - p))
+
+
+def checked_gaussians(means, scales, rotations, opacities, colors, normals=None, *, up: str = "y_down"):
+    """(means, scales, rotations, opacities, colors, normals) as float64 arrays, checked and moved
+    into ``up``'s frame with unit rotations (normals zero when None). Raises ValueError for an
+    unknown ``up``, wrong shapes, NaN/inf or zero quaternions."""
     if up not in UP_CHOICES:
         raise ValueError(f"up must be one of {UP_CHOICES}, found {up!r}")
-    if sh_degree not in (0, 1, 2, 3):
-        raise ValueError(f"sh_degree must be 0, 1, 2 or 3, found {sh_degree!r}")
     means = _as_rows("means", means, None, 3)
     n = means.shape[0]
     scales = _as_rows("scales", scales, n, 3)
@@ -132,14 +137,25 @@ def gaussian_rows(means, scales, rotations, opacities, colors, normals=None, *, 
                          f"{int(np.argmax(norm[:, 0] == 0))})")
     means, normals, rotations = _to_frame(up, means, normals, rotations / norm)
     rotations /= np.linalg.norm(rotations, axis=1, keepdims=True)
-    p = np.clip(opacities, OPACITY_EPS, 1.0 - OPACITY_EPS)
+    return means, scales, rotations, opacities, colors, normals
+
+
+def gaussian_rows(means, scales, rotations, opacities, colors, normals=None, *, up: str = "y_down",
+                  sh_degree: int = 3) -> np.ndarray:
+    """The (N, P) float32 table of vertex properties, in ``property_names`` order (see the module
+    docstring for the encodings). Raises ValueError for wrong shapes, NaN/inf or zero quaternions."""
+    if sh_degree not in (0, 1, 2, 3):
+        raise ValueError(f"sh_degree must be 0, 1, 2 or 3, found {sh_degree!r}")
+    means, scales, rotations, opacities, colors, normals = checked_gaussians(
+        means, scales, rotations, opacities, colors, normals, up=up)
+    n = means.shape[0]
     k = num_rest_coefficients(sh_degree)
     table = np.empty((n, 3 + 3 + 3 + k + 1 + 3 + 4), np.float32)
     table[:, 0:3] = means
     table[:, 3:6] = normals
     table[:, 6:9] = (colors - 0.5) / C0
     table[:, 9:9 + k] = 0.0
-    table[:, 9 + k] = np.log(p / (1.0 - p))
+    table[:, 9 + k] = opacity_logit(opacities)
     table[:, 10 + k:13 + k] = np.log(np.maximum(scales, MIN_SCALE))
     table[:, 13 + k:17 + k] = rotations
     return table

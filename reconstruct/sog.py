@@ -30,10 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .ply import C0, PlyFormatError, num_rest_coefficients, opacity_logit
+from .smallest_three import drop_largest, restore_largest
+
 MAX_MEMBER = 1 << 30  # bytes unpacked from one archive member
 MAX_GAUSSIANS = 1 << 28
-SH_COEFFICIENTS = {0: 0, 1: 3, 2: 8, 3: 15}
-_OTHERS = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))  # the three stored components, by the largest's index
 
 
 def is_sog(path: Path, head: bytes) -> bool:
@@ -44,8 +45,6 @@ class _Files:
     """The images and meta.json of a .sog archive or a meta.json folder."""
 
     def __init__(self, path: Path) -> None:
-        from .ply import PlyFormatError
-
         self.path, self.zip = path, None
         if path.name.lower() != "meta.json":
             try:
@@ -54,8 +53,6 @@ class _Files:
                 raise PlyFormatError(f"{path}: not a .sog archive ({exc})") from None
 
     def read(self, name: str) -> bytes:
-        from .ply import PlyFormatError
-
         if not isinstance(name, str) or not name:
             raise PlyFormatError(f"{self.path}: meta.json names a file {name!r}")
         if self.zip is not None:
@@ -84,8 +81,6 @@ def _image(files: _Files, name: str, count: int) -> np.ndarray:
     """(count, 4) uint8 RGBA texels of a lossless WebP, row by row."""
     from PIL import Image, UnidentifiedImageError
 
-    from .ply import PlyFormatError
-
     data = files.read(name)
     try:
         with Image.open(io.BytesIO(data)) as im:
@@ -100,8 +95,6 @@ def _image(files: _Files, name: str, count: int) -> np.ndarray:
 
 
 def _codebook(meta: dict, key: str, path: Path) -> np.ndarray:
-    from .ply import PlyFormatError
-
     book = np.asarray(meta[key].get("codebook", []), np.float64)
     if book.shape != (256,) or not np.all(np.isfinite(book)):
         raise PlyFormatError(f"{path}: meta.json {key}.codebook must hold 256 finite numbers, found {book.shape}")
@@ -111,9 +104,6 @@ def _codebook(meta: dict, key: str, path: Path) -> np.ndarray:
 def decode_sog(path: Path) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
     """(the 3DGS columns, comments) of a ``.sog`` archive or a SOG ``meta.json``. Raises
     ``PlyFormatError`` naming the file."""
-    from .compressed_ply import logit
-    from .ply import PlyFormatError
-
     files = _Files(path)
     try:
         meta = json.loads(files.read("meta.json").decode("utf-8"))
@@ -145,12 +135,8 @@ def decode_sog(path: Path) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
     quats = _image(files, files_of["quats"][0], count)
     tag = quats[:, 3].astype(np.int64) - 252
     abc = (quats[:, :3].astype(np.float64) / 255.0 * 2.0 - 1.0) / math.sqrt(2.0)
-    q = np.zeros((count, 4))
     valid = (tag >= 0) & (tag <= 3)
-    for largest, others in enumerate(_OTHERS):
-        sel = valid & (tag == largest)
-        q[np.ix_(sel, others)] = abc[sel]
-        q[sel, largest] = np.sqrt(np.maximum(0.0, 1.0 - (abc[sel] ** 2).sum(1)))
+    q = restore_largest(np.where(valid, tag, 0), abc)
     q[~valid] = (1.0, 0.0, 0.0, 0.0)
     for k in range(4):
         out[f"rot_{k}"] = q[:, k]
@@ -161,11 +147,11 @@ def decode_sog(path: Path) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
     for k in range(3):
         out[f"scale_{k}"] = book[scales[:, k]]
         out[f"f_dc_{k}"] = colours[sh0[:, k]]
-    out["opacity"] = logit(sh0[:, 3].astype(np.float64) / 255.0)
+    out["opacity"] = opacity_logit(sh0[:, 3].astype(np.float64) / 255.0)
     bands = int((meta.get("shN") or {}).get("bands", 0) or 0)
-    if bands not in SH_COEFFICIENTS:
+    if bands not in (0, 1, 2, 3):
         raise PlyFormatError(f"{path}: meta.json shN.bands {bands}: 0-3 are read")
-    for k in range(3 * SH_COEFFICIENTS[bands]):  # the degree only: higher SH are not drawn here
+    for k in range(num_rest_coefficients(bands)):  # the degree only: higher SH are not drawn here
         out[f"f_rest_{k}"] = np.zeros(count)
     return out, (f"sog version {version}",)
 
@@ -202,7 +188,6 @@ def encode_sog(means, scales, rotations, opacities, colors) -> bytes:
     """A ``.sog`` archive (version 2, no higher SH) of Gaussians (N,3 means, N,3 standard
     deviations, N,4 wxyz rotations, N opacities, N,3 colours in [0, 1]), put in Morton order."""
     from .compressed_ply import morton_order
-    from .ply import C0
 
     means = np.asarray(means, np.float64)
     n = len(means)
@@ -218,15 +203,10 @@ def encode_sog(means, scales, rotations, opacities, colors) -> bytes:
     opaque = np.full((n, 1), 255, np.uint8)
     means_l = np.concatenate([(q16 & 255).astype(np.uint8), opaque], 1)
     means_u = np.concatenate([(q16 >> 8).astype(np.uint8), opaque], 1)
-    q = np.asarray(rotations, np.float64)[order]
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    largest = np.abs(q).argmax(1)
-    q = q * np.where(q[np.arange(n), largest] < 0, -1.0, 1.0)[:, None]
+    largest, three = drop_largest(np.asarray(rotations, np.float64)[order])
     quats = np.zeros((n, 4), np.uint8)
-    for m, others in enumerate(_OTHERS):
-        sel = largest == m
-        quats[sel, :3] = np.clip(np.round((q[np.ix_(sel, others)] * math.sqrt(2.0) + 1.0) / 2.0 * 255.0), 0, 255)
-        quats[sel, 3] = 252 + m
+    quats[:, :3] = np.clip(np.round((three * math.sqrt(2.0) + 1.0) / 2.0 * 255.0), 0, 255)
+    quats[:, 3] = 252 + largest
     scale_book, scale_label = _codebook_of(np.log(np.maximum(np.asarray(scales, np.float64)[order], 1e-30)))
     f_dc = (np.clip(np.asarray(colors, np.float64)[order], 0.0, 1.0) - 0.5) / C0
     colour_book, colour_label = _codebook_of(f_dc)

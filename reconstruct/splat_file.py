@@ -13,14 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .ply import C0, PlyFormatError, opacity_logit
+
 RECORD = np.dtype([("position", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rotation", "u1", 4)])
 
 
 def decode_splat(data: bytes, path: Path) -> dict[str, np.ndarray]:
     """The 3DGS columns of a ``.splat`` file's bytes. Raises ``PlyFormatError`` naming the file."""
-    from .compressed_ply import logit
-    from .ply import C0, PlyFormatError
-
     if len(data) == 0 or len(data) % RECORD.itemsize:
         raise PlyFormatError(f"{path}: not a .splat file: its size ({len(data)} bytes) is not a positive multiple of "
                              f"{RECORD.itemsize} (one record per Gaussian)")
@@ -42,7 +41,7 @@ def decode_splat(data: bytes, path: Path) -> dict[str, np.ndarray]:
         out[f"f_dc_{k}"] = (rgba[:, k] - 0.5) / C0
     for k in range(4):
         out[f"rot_{k}"] = q[:, k]
-    out["opacity"] = logit(rgba[:, 3])
+    out["opacity"] = opacity_logit(rgba[:, 3])
     return out
 
 

@@ -24,9 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .ply import C0, PlyFormatError, num_rest_coefficients, opacity_logit
+from .smallest_three import drop_largest, restore_largest
+
 MAGIC = 0x5053474E  # "NGSP"
 COLOR_SCALE = 0.15
-SH_COMPONENTS = {0: 0, 1: 9, 2: 24, 3: 45}
 MAX_GAUSSIANS = 1 << 28
 
 
@@ -35,8 +37,6 @@ def is_spz(data: bytes) -> bool:
 
 
 def _gunzip(data: bytes, path: Path, limit: int) -> bytes:
-    from .ply import PlyFormatError
-
     try:
         with gzip.GzipFile(fileobj=io.BytesIO(data)) as f:
             out = f.read(limit + 1)
@@ -50,9 +50,6 @@ def _gunzip(data: bytes, path: Path, limit: int) -> bytes:
 def decode_spz(data: bytes, path: Path) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
     """(the 3DGS columns, comments such as 'spz version 4, antialiased') of a ``.spz`` file's bytes.
     Raises ``PlyFormatError`` naming the file."""
-    from .compressed_ply import logit
-    from .ply import PlyFormatError
-
     def fail(msg):
         return PlyFormatError(f"{path}: {msg}")
 
@@ -64,12 +61,12 @@ def decode_spz(data: bytes, path: Path) -> tuple[dict[str, np.ndarray], tuple[st
     degree, frac, flags = data[12], data[13], data[14]
     if version not in (2, 3, 4):
         raise fail(f".spz version {version}; versions 2, 3 and 4 are read")
-    if degree not in SH_COMPONENTS:
+    if degree not in (0, 1, 2, 3):
         raise fail(f"SH degree {degree}; 0-3 are read")
     if n > MAX_GAUSSIANS:
         raise fail(f"{n} Gaussians declared, more than this reader takes ({MAX_GAUSSIANS})")
     rot_width = 3 if version == 2 else 4
-    sizes = [n * 9, n, n * 3, n * 3, n * rot_width] + ([n * SH_COMPONENTS[degree]] if degree else [])
+    sizes = [n * 9, n, n * 3, n * 3, n * rot_width] + ([n * num_rest_coefficients(degree)] if degree else [])
     if version >= 4:
         if len(data) < 32:
             raise fail("truncated .spz header (version 4 has 32 bytes)")
@@ -109,7 +106,7 @@ def decode_spz(data: bytes, path: Path) -> tuple[dict[str, np.ndarray], tuple[st
     fixed = np.where(fixed & 0x800000, fixed - (1 << 24), fixed)
     means = fixed.astype(np.float64) / (1 << frac)
     out = {axis: means[:, k] for k, axis in enumerate("xyz")}
-    out["opacity"] = logit(b[1].astype(np.float64) / 255.0)
+    out["opacity"] = opacity_logit(b[1].astype(np.float64) / 255.0)
     colours = b[2].reshape(n, 3).astype(np.float64)
     logs = b[3].reshape(n, 3).astype(np.float64) / 16.0 - 10.0
     for k in range(3):
@@ -121,24 +118,13 @@ def decode_spz(data: bytes, path: Path) -> tuple[dict[str, np.ndarray], tuple[st
         q = np.concatenate([w[:, None], xyz], 1)
     else:
         packed = np.frombuffer(streams[4], "<u4").astype(np.int64)
-        largest = packed >> 30
-        xyzw = np.zeros((n, 4))
-        shift = np.zeros(n, np.int64)
-        total = np.zeros(n)
-        for j in (3, 2, 1, 0):  # the components other than the largest, from the low bits up
-            skip = largest == j
-            word = packed >> shift
-            v = math.sqrt(0.5) * (word & 511) / 511.0
-            v = np.where((word >> 9) & 1, -v, v)
-            xyzw[:, j] = np.where(skip, 0.0, v)
-            total += np.where(skip, 0.0, v * v)
-            shift += np.where(skip, 0, 10)
-        xyzw[np.arange(n), largest] = np.sqrt(np.maximum(0.0, 1.0 - total))
-        q = xyzw[:, [3, 0, 1, 2]]
+        words = np.stack([(packed >> shift) & 1023 for shift in (20, 10, 0)], 1)  # the other three, in order
+        three = math.sqrt(0.5) * (words & 511) / 511.0 * np.where((words >> 9) & 1, -1.0, 1.0)
+        q = restore_largest(packed >> 30, three)[:, [3, 0, 1, 2]]  # stored x, y, z, w
     for k in range(4):
         out[f"rot_{k}"] = q[:, k]
     if degree:
-        m = SH_COMPONENTS[degree]
+        m = num_rest_coefficients(degree)
         sh = (b[5].reshape(n, m).astype(np.float64) - 128.0) / 128.0
         per = m // 3
         for c in range(m):  # stored coefficient by coefficient, channels inside; 3DGS keeps channels outside
@@ -152,8 +138,6 @@ def encode_spz(means, scales, rotations, opacities, colors, *, version: int = 3,
     rotations, N opacities, N,3 colours in [0, 1]) in the order given: version 3 (one gzip
     stream, what every reader takes) or 4 (a zstd stream per column). ``fractional_bits`` (12:
     0.24 mm steps, +-2 km) sets the positions' fixed point."""
-    from .ply import C0
-
     if version not in (3, 4):
         raise ValueError(f".spz version {version}: 3 or 4 are written")
     means = np.asarray(means, np.float64)
@@ -173,18 +157,10 @@ def encode_spz(means, scales, rotations, opacities, colors, *, version: int = 3,
     colours = u8((f_dc * COLOR_SCALE + 0.5) * 255.0)
     logs = np.log(np.maximum(np.asarray(scales, np.float64), 1e-30))
     scale_bytes = u8((logs + 10.0) * 16.0)
-    q = np.asarray(rotations, np.float64)
-    xyzw = (q / np.linalg.norm(q, axis=1, keepdims=True))[:, [1, 2, 3, 0]]
-    largest = np.abs(xyzw).argmax(1)
-    xyzw *= np.where(xyzw[np.arange(n), largest] < 0, -1.0, 1.0)[:, None]
-    packed = np.zeros(n, np.int64)
-    for j in range(4):  # the other three in order, the last in the low bits (the reader takes them from there)
-        keep = largest != j
-        v = xyzw[:, j]
-        magnitude = np.clip(np.round(np.abs(v) / math.sqrt(0.5) * 511), 0, 511).astype(np.int64)
-        bits = (np.where(v < 0, 1, 0) << 9) | magnitude
-        packed = np.where(keep, (packed << 10) | bits, packed)
-    packed |= largest.astype(np.int64) << 30
+    largest, three = drop_largest(np.asarray(rotations, np.float64)[:, [1, 2, 3, 0]])  # stored x, y, z, w
+    magnitude = np.clip(np.round(np.abs(three) / math.sqrt(0.5) * 511), 0, 511).astype(np.int64)
+    words = (np.where(three < 0, 1, 0) << 9) | magnitude  # the other three in order, from the high bits down
+    packed = (largest.astype(np.int64) << 30) | (words[:, 0] << 20) | (words[:, 1] << 10) | words[:, 2]
     rotation_bytes = packed.astype("<u4").tobytes()
     columns = [positions.tobytes(), alphas.tobytes(), colours.tobytes(), scale_bytes.tobytes(), rotation_bytes]
     if version == 3:
