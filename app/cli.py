@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from reconstruct.data.load import DEFAULT_SCENE
+from reconstruct.gaussian_files import FORMATS as SPLAT_FORMATS
 
 
 def _cmd_synth(args) -> int:
@@ -378,7 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_.add_argument("--sh-degree", type=int, default=3, choices=[0, 1, 2, 3],
                     help="SH degree of the file (higher coefficients are zero; 3 is what viewers expect)")
     p_.add_argument("--overwrite", action="store_true", help="replace an existing sequence folder")
-    p_.add_argument("--format", default=None, choices=["ply", "compressed.ply", "splat", "spz", "sog"],
+    p_.add_argument("--format", default=None, choices=SPLAT_FORMATS,
                     help="layout of a sequence's files (default ply; .spz is about 20 times smaller, quantised); "
                          "a single file's name picks its own")
     s.add_argument("--quiet", action="store_true", help="no progress bar")

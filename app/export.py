@@ -23,11 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from reconstruct.atomic import atomic_output
+from reconstruct.gaussian_files import FORMATS as SPLAT_FORMATS
+from reconstruct.gaussian_files import GAUSSIAN_SUFFIXES, splat_format
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 IMAGE_SUFFIXES = (".png",)
 SUPPORTED_SUFFIXES = VIDEO_SUFFIXES + IMAGE_SUFFIXES
-SPLAT_SUFFIXES = (".ply", ".splat", ".spz", ".sog")  # one pose: the name picks the layout (NAME.compressed.ply too)
 
 
 # ----------------------------------------------------------------------------- destination checks
@@ -385,8 +386,8 @@ def check_ply_destination(out_path, *, sequence: bool, overwrite: bool = False) 
     or (``sequence``) a new folder name there."""
     out = Path(out_path)
     if not sequence:
-        return check_destination(out, suffixes=SPLAT_SUFFIXES)
-    if out.suffix.lower() in SPLAT_SUFFIXES:
+        return check_destination(out, suffixes=GAUSSIAN_SUFFIXES)  # the name picks the layout
+    if out.suffix.lower() in GAUSSIAN_SUFFIXES:
         raise ValueError(f"{out}: a pose sequence is written as one file per frame into a folder; "
                          f"give a folder name (without {out.suffix})")
     folder = out.parent if str(out.parent) else Path(".")
@@ -464,12 +465,10 @@ class _LazySnapshots:
 def check_splat_format(out_path, fmt: str | None, *, sequence: bool) -> None:
     """ValueError for a ``fmt`` that is not a splat layout, or that disagrees with a single file's
     name (which picks its own layout)."""
-    from reconstruct.gaussian_files import FORMATS, splat_format
-
     if fmt is None:
         return
-    if fmt not in FORMATS:
-        raise ValueError(f"splat file format must be one of {', '.join(FORMATS)}, found {fmt!r}")
+    if fmt not in SPLAT_FORMATS:
+        raise ValueError(f"splat file format must be one of {', '.join(SPLAT_FORMATS)}, found {fmt!r}")
     if not sequence and splat_format(out_path) != fmt:
         raise ValueError(f"{out_path}: the name asks for {splat_format(out_path)!r}, the format given is {fmt!r}; "
                          f"name the file NAME.{fmt}")

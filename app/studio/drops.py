@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-MOTION_SUFFIXES = (".bvh", ".fbx", ".glb", ".gltf", ".npz")
-SPLAT_SUFFIXES = (".ply", ".splat", ".spz", ".sog")
+from reconstruct.gaussian_files import GAUSSIAN_SUFFIXES as SPLAT_SUFFIXES
+from reconstruct.motion.io import MOTION_SUFFIXES
 
 
 def drop_kind(path) -> str:

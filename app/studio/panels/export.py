@@ -6,20 +6,20 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from reconstruct.gaussian_files import FORMATS as SPLAT_FORMATS
+
 from ..export_job import FORMATS, KIND_LABELS, KINDS, PLY_KINDS
 from .common import error_text
 from .context import PanelContext
 
 UPS = (("y_down", "y down (viewers)"), ("z_up", "z up (ours)"))
-SPLAT_FORMATS = ("ply", "compressed.ply", "splat", "spz", "sog")
-SPLAT_SUFFIXES = tuple("." + f for f in SPLAT_FORMATS)
 
 
 def _retarget_suffix(out: str, kind: str, splat_format: str = "ply") -> str:
     """The file field after choosing ``kind``: the splat format's suffix (.ply ...) for one file, no
     suffix for a folder of them, .mp4/.gif kept (or .mp4) for videos."""
     low = out.lower()
-    known = FORMATS + (".compressed.ply", ".ply", ".splat", ".spz", ".sog")  # the longer suffix first
+    known = FORMATS + tuple(sorted(("." + f for f in SPLAT_FORMATS), key=len, reverse=True))  # longer first
     stem = next((out[: -len(s)] for s in known if low.endswith(s)), out)
     if kind == "ply_sequence":
         return stem if stem.endswith("_frames") else stem + "_frames"
