@@ -153,7 +153,8 @@ class _Curve:
             raise MotionFileError(f"{path}: an animation curve's key times go backwards")
         flags = node.find("KeyAttrFlags")
         counts = node.find("KeyAttrRefCount")
-        self.constant = np.zeros(len(self.times), bool)
+        self.constant = np.zeros(len(self.times), bool)  # held to the key (constant keys) ...
+        self.constant_next = np.zeros(len(self.times), bool)  # ... or to the next key's value
         if flags is not None and counts is not None and flags.values and counts.values:
             f, c = np.asarray(flags.values[0]).ravel(), np.asarray(counts.values[0]).ravel()
             if len(f) == len(c) and np.all(c >= 0) and int(c.sum()) == len(self.times):
@@ -170,8 +171,7 @@ class _Curve:
         w = np.clip((ticks - k[i]) / span, 0.0, 1.0)
         hold = self.constant[i] & (w < 1.0)
         w = np.where(hold, 0.0, w)
-        if hasattr(self, "constant_next"):
-            w = np.where(hold & self.constant_next[i], 1.0, w)
+        w = np.where(hold & self.constant_next[i], 1.0, w)
         return self.values[i] * (1.0 - w) + self.values[i + 1] * w
 
 
@@ -292,6 +292,9 @@ def _read_scene(path: Path, version: int, root: FbxNode, up: str | None, forward
             value = _number(defaults.get(key))
             if value is not None:
                 tracks.setdefault(target, {}).setdefault(axis, value)
+    # (model, channel) pairs whose curves change along the keys (exporters bake constant ones too)
+    varying = {key for key, axes in tracks.items()
+               if any(isinstance(c, _Curve) and varies(c.values) for c in axes.values())}
     in_use = set(order) | set(chain)
     curves = [c for (m, _), axes in tracks.items() if m in in_use for c in axes.values() if isinstance(c, _Curve)]
     if not any(m in index for (m, ch), axes in tracks.items() if any(isinstance(c, _Curve) for c in axes.values())):
@@ -325,8 +328,7 @@ def _read_scene(path: Path, version: int, root: FbxNode, up: str | None, forward
     for m in chain:
         above_rest = models[m].rest_matrix() @ above_rest
         above = animated_matrix(m) @ above
-    if any(m in chain and any(isinstance(c, _Curve) and varies(c.values) for c in axes.values())
-           for (m, _), axes in tracks.items()):
+    if any(m in chain for m, _ in varying):
         notes.append("the nodes above the skeleton move: their motion is the root's")
     # the rest pose: the bind pose where the file has one (the models' own values are often the pose
     # of the frame the file was exported at), else the models' own values
@@ -341,19 +343,16 @@ def _read_scene(path: Path, version: int, root: FbxNode, up: str | None, forward
                  if in_bind else "rest pose: the models' own values (the file has no bind pose)")
     L = np.stack([models[m].rotation(channel(m, "Lcl Rotation")) for m in order], 1)
     root_t = animated_matrix(order[0])[:, :3, 3]
-    scaled = sorted({models[m].name for (m, ch), axes in tracks.items() if m in index and ch == "Lcl Scaling"
-                     and any(isinstance(c, _Curve) and varies(c.values) for c in axes.values())})
+    scaled = sorted({models[m].name for m, ch in varying if m in index and ch == "Lcl Scaling"})
     if scaled:
         notes.append(f"animated scale of {len(scaled)} joint{'s' * (len(scaled) != 1)} ignored")
-    moved = sorted({models[m].name for (m, ch), axes in tracks.items() if m in index and m != order[0]
-                    and ch == "Lcl Translation" and any(isinstance(c, _Curve) and varies(c.values)
-                                                        for c in axes.values())})
+    moved = sorted({models[m].name for m, ch in varying if m in index and m != order[0] and ch == "Lcl Translation"})
     if moved:
         notes.append(f"translations of {len(moved)} non-root joints ignored: bone lengths are the avatar's")
     pivoted = [m for m in order[1:] if np.any(models[m].rot_pivot != 0) or np.any(models[m].rot_offset != 0)]
     if pivoted:
-        notes.append(f"rotation pivots on {len(pivoted)} joint{'s' * (len(pivoted) != 1)}: their origins are kept where the rest pose has "
-                     "them (bone lengths are the avatar's)")
+        notes.append(f"rotation pivots on {len(pivoted)} joint{'s' * (len(pivoted) != 1)}: their origins are kept "
+                     "where the rest pose has them (bone lengths are the avatar's)")
     if not all(np.all(np.isfinite(a)) for a in (rest_world, L, above, root_t)):
         raise MotionFileError(f"{path}: the skeleton's transforms hold values that are not finite numbers")
     unit_cm = settings.get("UnitScaleFactor")
