@@ -23,6 +23,12 @@ def add_prepare_parser(sub) -> None:
                    help="which person to prepare when several are in view, numbered 1, 2, ... from left to right "
                         "(default: the largest and most central)")
     s.add_argument("--no-crop", action="store_true", help="keep the whole frame instead of cropping around the person")
+    s.add_argument("--masks", metavar="PATH",
+                   help="your own person masks instead of the segmenter's: a mask video, a mask image (for a photo) "
+                        "or a folder of mask images (named as the frames' images, or one per frame in order); "
+                        "white or opaque: person (docs/prepare.md)")
+    s.add_argument("--no-alpha", action="store_true",
+                   help="segment a cut-out (an image with transparency) instead of taking its alpha as the mask")
     s.add_argument("--no-refine", action="store_true", help="keep the segmenter's mask (no GrabCut refinement)")
     s.add_argument("--no-fill-holes", action="store_true", help="keep small enclosed holes in the mask")
     s.add_argument("--no-turn", action="store_true",
@@ -91,6 +97,9 @@ def run_prepare(args: argparse.Namespace) -> int:
         raise ValueError(f"--height is the person's height in metres (0.5 to 2.5), found {args.height}")
     check_output_folder(args.out)
     probe_input(args.video)  # a missing or unreadable input is reported before anything else runs
+    if args.masks is not None and not Path(args.masks).exists():
+        raise FileNotFoundError(f"{args.masks}: no such mask video, image or folder (--masks names your own person "
+                                f"masks: a mask video, a mask image or a folder of mask images)")
     kw = {"fov_y_deg": args.fov, "refine_focal": not args.fixed_focal, "fit_shape": not args.no_shape,
           "stature_m": args.height, "upright": args.upright}
     if args.iters is not None:
@@ -105,7 +114,8 @@ def run_prepare(args: argparse.Namespace) -> int:
         out, report = prepare_video(args.video, args.out, detector=detector, fit_config=FitConfig(**kw),
                                     max_size=args.size, every=args.every, max_frames=args.max_frames,
                                     person=args.person, crop=not args.no_crop, fill_holes=not args.no_fill_holes,
-                                    turn=not args.no_turn, report_image=not args.no_report_image, progress=bars)
+                                    turn=not args.no_turn, report_image=not args.no_report_image,
+                                    masks=args.masks, use_alpha=not args.no_alpha, progress=bars)
     finally:
         bars.close()
     print(json.dumps(report, indent=1) if args.json else format_report(report))

@@ -39,6 +39,10 @@ SCRIPT = textwrap.dedent("""
             fc.state.source = tmp + "/no_such_photo.png"
             result["missing_started"] = fc.prepare()
             result["missing_message"] = fc.state.message
+            fc.state.source, fc.state.masks = {photo!r}, tmp + "/no_such_masks"
+            result["missing_masks_started"] = fc.prepare()
+            result["missing_masks_message"] = fc.state.message
+            fc.state.masks = ""
             fc.state.source = {photo!r}
             result["started"] = fc.prepare()
             result["first_scene"] = app.scene.name
@@ -97,6 +101,7 @@ def test_prepare_a_photo_and_train_on_it_from_the_window(tmp_path):
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     r = json.loads(Path(out + ".json").read_text())
     assert r["rc"] == 0 and r["missing_started"] is False and "no such file" in r["missing_message"], r
+    assert r["missing_masks_started"] is False and "no_such_masks: no such mask" in r["missing_masks_message"], r
     assert r["started"] and r["scene_folder"], (r["message"], r)
     # the bar followed prepare's steps (the fit's at least; the detector's may pass within a frame)
     assert {"keypoints", "silhouette"} <= set(r.get("stages", [])), r.get("stages")

@@ -37,6 +37,7 @@ class FootageState:
     """What the footage panel shows and edits."""
 
     source: str = ""  # the input path the user typed
+    masks: str = ""  # the user's own person masks (a mask video, image or folder; empty: the segmenter's)
     person: int = 0  # 0: the largest, most central person; N: the N-th from the left
     scene_folder: str | None = None  # the prepared scene (after success)
     report_text: str | None = None
@@ -99,6 +100,10 @@ class FootageController:
         if not path.exists():
             st.message = f"{path}: no such file or folder ({INPUT_HINT} expected)"
             return False
+        masks = Path(st.masks.strip()).expanduser() if st.masks.strip() else None
+        if masks is not None and not masks.exists():
+            st.message = f"{masks}: no such mask file or folder (a mask video, a mask image or a folder of them)"
+            return False
         out = free_folder(Path(self.scenes_root) / (path.stem or "footage"))
         st.message = st.report_text = st.report_image = st.scene_folder = st.step = None
         st.log.clear()
@@ -110,7 +115,7 @@ class FootageController:
             Path(self.scenes_root).mkdir(parents=True, exist_ok=True)
             extra = {} if self.fit_config is None else {"fit_config": self.fit_config}
             folder, report = prepare_video(path, out, detector=MediapipeDetector(), person=person or None,
-                                           log=st.add_log, progress=st.set_step, **extra)
+                                           masks=masks, log=st.add_log, progress=st.set_step, **extra)
             return folder, format_report(report)
 
         self.prepare_job = BackgroundJob(work, name="prepare")

@@ -21,6 +21,12 @@ def draw(ui: PanelContext) -> None:
     ui.mark("footage_path")
     if ch:
         st.source = text
+    ch, text = imgui.input_text("masks (optional)", st.masks)
+    if imgui.is_item_hovered():
+        imgui.set_tooltip("your own person masks instead of the segmenter's: a mask video, a mask image or a\n"
+                          "folder of them (white or opaque: person). A cut-out's transparency is used by itself.")
+    if ch:
+        st.masks = text
     ch, v = imgui.input_int("person (0 = auto)", st.person, 1, 1)
     if ch:
         st.person = max(0, v)

@@ -38,6 +38,7 @@ from .matting import decontaminate
 from .people import PersonChoiceError, PersonTrack, choose_person, quarter_turns
 from .report_image import REPORT_IMAGE, ReportFrame, pick_frames, write_report_image
 from .shape import ShapeBasis, body_height
+from .user_masks import read_user_masks
 from .video import Video, working_size
 
 REPORT_NAME = "prepare_report.json"
@@ -160,11 +161,15 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
                   fit_config: FitConfig = FitConfig(), max_size: int | None = 512, every: int = 1,
                   max_frames: int | None = None, phenotype: dict | None = None, person: int | None = None,
                   crop: bool = True, fill_holes: bool = True, report_image: bool = True, turn: bool = True,
+                  masks: str | os.PathLike | None = None, use_alpha: bool = True,
                   log=_log, progress=None) -> tuple[Path, dict]:
     """Make a scene folder ``out`` from a video, an image or a folder of images; returns (folder, report).
     Nothing is written unless every step succeeds. ``progress``, if given, is called as
     progress(stage, done, total) through the long steps: the detector's stages ("people", "poses",
-    "masks", where it reports them) and the fit's ("keypoints", "silhouette")."""
+    "masks", where it reports them) and the fit's ("keypoints", "silhouette"). The person masks are the
+    user's where there are any (``masks``: a mask video, image or folder; else, with ``use_alpha``, a
+    cut-out input's transparency: ``user_masks.py``), taken as they are; else the detector's, with
+    other people removed and small holes filled (``fill_holes``)."""
     t0 = time.perf_counter()
     video_path = Path(video_path)
     out = check_output_folder(out)
@@ -224,16 +229,26 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
         for i, o in enumerate(others):
             if o is not None:
                 frames[i][o] = np.median(frames[i][~o], axis=0).astype(np.uint8)
+    user, mask_source = read_user_masks(masks, video_path, names=names, indices=video.indices,
+                                        source_size=video.source_size, turns=turns,
+                                        transform=lambda m: apply_crop(m[None], cr)[0], every=every,
+                                        max_frames=max_frames, use_alpha=use_alpha)
+    if user is not None:
+        log(f"person masks: {mask_source} (taken as they are; the segmenter's are not used)")
     det = detector.detect(frames)
     t_det = time.perf_counter()
-    masks = det.masks.copy()
     holes = 0
-    for i in range(T):
-        masks[i] = remove_others(masks[i], others[i])
-        if fill_holes:
-            masks[i], n = fill_mask_holes(masks[i])
-            holes += n
-    det.masks = masks
+    if user is not None:
+        det.raw_masks, det.refine_used = det.masks, None  # the report shows where the user's differ
+        det.masks = user
+    else:
+        masks = det.masks.copy()
+        for i in range(T):
+            masks[i] = remove_others(masks[i], others[i])
+            if fill_holes:
+                masks[i], n = fill_mask_holes(masks[i])
+                holes += n
+        det.masks = masks
     keep, dropped = person_frames(det)
     for d in dropped:
         pos = d.pop("position")
@@ -285,7 +300,8 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
         "person": None if track is None else {"picked": track.index, "people_found": track.count,
                                               "picked_by": track.picked_by},
         "crop": cr.to_dict(), "source_frame_size": [W0, H0], "turned_deg": 90 * turns,
-        "masks": {"refined_frames": None if kept.refine_used is None else int(kept.refine_used.sum()),
+        "masks": {"source": mask_source,
+                  "refined_frames": None if kept.refine_used is None else int(kept.refine_used.sum()),
                   "holes_filled": holes},
         "detector": detector.describe() | kept.info,
         "camera": {"focal_px": fit.camera.fx, "focal_guess_px": fit.focal_guess,

@@ -1,0 +1,195 @@
+"""Person masks that the user made: a cut-out's own transparency, or mask files given with ``--masks``.
+
+The segmenter's mask is soft and often wrong where the background shows through a small gap (the wall
+between an arm and a skirt is called person, and the hole filling closes it; the avatar then wears a
+patch of wall). A user who cut the person out with another tool (a background remover, a matting
+network, a rotoscope, a painted fix) knows better, so ``prepare`` takes that mask instead of the
+segmenter's, as it is: no refinement, no hole filling, nobody removed. The detector still finds the
+keypoints.
+
+Where masks come from, first found first:
+
+* ``--masks PATH``: a mask video (a matting network's alpha output), one mask image (for a photo) or a
+  folder of mask images. An image's mask is its alpha channel when it has transparency, else its
+  brightness (white: person). A folder is matched to the input by name (a mask named as the frame's
+  image, optionally with ``_mask``, ``-mask``, ``_alpha``, ``_matte`` after the name), else by order:
+  its images in name order are the input's frames in order, every one of them (``--every`` and
+  ``--max-frames`` pick from both alike).
+* the input's own transparency: a cut-out PNG/WebP (or a folder of them) whose alpha is not opaque
+  everywhere. ``--no-alpha`` gives such an input to the segmenter instead.
+
+A mask must show the frame it belongs to: the same size after the frame's orientation (EXIF) and the
+quarter turns ``prepare`` reads a lying person with, or the same shape at another resolution (then it
+is resized). Anything else is an error naming the file and both sizes.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .inputs import IMAGE_SUFFIXES, WIDE_MODES, InputError, _register_heif, input_kind, list_images
+from .video import VideoError, read_video
+
+# what may follow a frame's name in its mask's name (frame_0001.jpg -> frame_0001_mask.png)
+MASK_NAME_SUFFIXES = ("", "_mask", "-mask", ".mask", "_alpha", "-alpha", "_matte", "-matte")
+ASPECT_TOLERANCE = 0.01  # a mask of another resolution is taken when its aspect ratio is this close
+
+
+def has_transparency(im) -> bool:
+    """Whether a PIL image carries an alpha channel (or a transparent palette entry)."""
+    return im.mode in ("RGBA", "LA", "PA", "RGBa", "La") or (im.mode == "P" and "transparency" in im.info)
+
+
+def _open_upright(path: Path):
+    from PIL import Image, ImageOps, UnidentifiedImageError
+
+    if path.suffix.lower() in (".heic", ".heif"):
+        _register_heif(path)
+    try:
+        im = Image.open(path)
+        im.load()
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot be read as a mask image (expected {', '.join(IMAGE_SUFFIXES)}): "
+                         f"{type(exc).__name__}: {exc}") from exc
+    try:
+        im = ImageOps.exif_transpose(im) or im
+    except Exception:  # noqa: BLE001 - a broken EXIF block: the pixels as stored
+        pass
+    return im
+
+
+def image_alpha(path: Path) -> np.ndarray | None:
+    """(H,W) float32 in [0,1]: the image's alpha, or None when it has none or it is opaque everywhere."""
+    im = _open_upright(path)
+    if not has_transparency(im):
+        return None
+    a = np.asarray(im.convert("RGBA"))[..., 3]
+    if a.min() == 255:
+        return None
+    return a.astype(np.float32) / 255.0
+
+
+def mask_from_image(path: Path) -> np.ndarray:
+    """(H,W) float32 in [0,1]: the alpha of an image with transparency, else its brightness."""
+    alpha = image_alpha(path)
+    if alpha is not None:
+        return alpha
+    im = _open_upright(path)
+    if im.mode in WIDE_MODES:  # 16-bit and float greys at their own range
+        a = np.asarray(im).astype(np.float64)
+        full = 65535.0 if im.mode.startswith("I;16") or a.max() > 255 else (1.0 if im.mode == "F" and a.max() <= 1 else 255.0)
+        return np.clip(a / full, 0.0, 1.0).astype(np.float32)
+    return np.asarray(im.convert("L")).astype(np.float32) / 255.0
+
+
+def _matched_files(folder: Path, input_path: Path, kind: str, names: list[str], indices: np.ndarray) -> list[Path]:
+    """The mask file of each frame used (``names``/``indices`` as ``read_input`` gave them)."""
+    files = list_images(folder)
+    if kind == "folder":
+        by_name = {}
+        for f in files:
+            by_name.setdefault(f.stem.lower(), f)
+        picked = []
+        for n in names:
+            stem = Path(n).stem.lower()
+            hit = next((by_name[stem + s] for s in MASK_NAME_SUFFIXES if stem + s in by_name), None)
+            if hit is None:
+                break
+            picked.append(hit)
+        else:
+            return picked
+        total = len(list_images(input_path))
+        if len(files) != total:
+            raise InputError(f"{folder}: holds {len(files)} mask images and no mask named as the frame {names[len(picked)]}; "
+                             f"expected masks named as {input_path.name}'s images, or one mask per image in the same "
+                             f"order ({total})")
+        return [files[int(i)] for i in indices]
+    need = int(indices.max()) + 1
+    if len(files) < need:
+        raise InputError(f"{folder}: holds {len(files)} mask images; expected one per frame of {input_path.name} in "
+                         f"order, at least {need} for the frames used")
+    return [files[int(i)] for i in indices]
+
+
+def _fit_to_frame(mask: np.ndarray, size: tuple[int, int], where: str, frame_what: str) -> np.ndarray:
+    """``mask`` at the frame's ``size`` (W,H): as it is, or resized when only its resolution differs."""
+    from PIL import Image
+
+    W, H = size
+    h, w = mask.shape
+    if (w, h) == (W, H):
+        return mask
+    if abs((w / h) / (W / H) - 1.0) > ASPECT_TOLERANCE:
+        raise InputError(f"{where}: the mask is {w}x{h} pixels, {frame_what} is {W}x{H}; expected a mask of the "
+                         f"frame's size (or its shape at another resolution)")
+    return np.asarray(Image.fromarray(mask, mode="F").resize((W, H), Image.Resampling.BILINEAR))
+
+
+def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLike, *, names: list[str],
+                    indices: np.ndarray, source_size: tuple[int, int], turns: int = 0, transform=None,
+                    every: int = 1, max_frames: int | None = None, use_alpha: bool = True
+                    ) -> tuple[np.ndarray | None, str]:
+    """(masks (T,H,W) float32 in [0,1] of the frames used, or None; where they came from: the masks
+    path, "the input's transparency" or "segmenter"). ``names``/``indices``: the frames ``read_input``
+    gave (indices into the file's frames or the folder's images); ``source_size`` (W,H): their size
+    after the orientation and ``turns``; ``transform``: the crop applied to the frames, applied alike
+    to each (H,W) mask."""
+    input_path = Path(input_path)
+    kind = input_kind(input_path)
+    indices = np.asarray(indices)
+    T = len(names)
+
+    def place(m: np.ndarray, where: str) -> np.ndarray:  # an upright, turned mask onto the frame used
+        m = _fit_to_frame(m.astype(np.float32), source_size, where, f"the frame of {input_path.name}")
+        if transform is not None:
+            m = transform(m)
+        return np.clip(m, 0.0, 1.0).astype(np.float32)
+
+    def finish(raw: np.ndarray, where: str) -> np.ndarray:
+        return place(np.ascontiguousarray(np.rot90(raw, turns % 4)), where)
+
+    if masks is not None:
+        path = Path(masks)
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such mask video, image or folder (expected --masks to name a mask "
+                                    f"video, a mask image or a folder of mask images)")
+        mkind = input_kind(path)
+        if mkind == "video":
+            def grey(frame: np.ndarray) -> np.ndarray:  # read_video has turned it already
+                m = place(frame.astype(np.float32).mean(-1) / 255.0, f"{path}")
+                return np.round(m * 255.0).astype(np.uint8)  # read_video stacks frames as uint8
+
+            try:
+                v = read_video(path, max_size=None, every=every, max_frames=max_frames, transform=grey, turns=turns)
+            except VideoError as exc:
+                if isinstance(exc.__cause__, InputError):
+                    raise exc.__cause__ from None
+                raise
+            if len(v.frames) != T:
+                raise InputError(f"{path}: gives {len(v.frames)} mask frames, {input_path.name} gives {T}; "
+                                 f"expected one mask frame per frame")
+            return v.frames.astype(np.float32) / 255.0, str(path)
+        if mkind == "image":
+            if T != 1:
+                raise InputError(f"{path}: one mask image for {T} frames of {input_path.name}; expected a mask "
+                                 f"video or a folder of mask images")
+            files = [path]
+        else:
+            files = _matched_files(path, input_path, kind, names, indices)
+        return np.stack([finish(mask_from_image(f), str(f)) for f in files]), str(path)
+    if use_alpha and kind != "video":
+        files = [input_path] if kind == "image" else [input_path / n for n in names]
+        alphas = []
+        for f in files:
+            a = image_alpha(f)
+            if a is None:
+                return None, "segmenter"
+            alphas.append(finish(a, str(f)))
+        return np.stack(alphas), "the input's transparency"
+    return None, "segmenter"
+
+
+__all__ = ["MASK_NAME_SUFFIXES", "has_transparency", "image_alpha", "mask_from_image", "read_user_masks"]

@@ -1,0 +1,212 @@
+"""``prepare`` with the user's own person masks: a cut-out's transparency or ``--masks`` (a mask image,
+a folder of mask images matched by name or by order, a mask video); sizes, orientation and the crop;
+the errors that name the file. The pipeline runs with ``SyntheticSceneDetector`` (a TEST DOUBLE, see
+test_prepare_video.py), whose masks are the scene's true ones, so a user mask that differs from them
+shows in the scene written."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from reconstruct.data.prepare import InputError, prepare_video
+from reconstruct.data.prepare.crop import Crop, apply_crop
+from reconstruct.data.prepare.fit import FitConfig
+from reconstruct.data.prepare.masks import fill_holes
+from reconstruct.data.prepare.user_masks import image_alpha, mask_from_image, read_user_masks
+from reconstruct.data.scene_io import read_scene
+from test_prepare_video import SyntheticSceneDetector
+
+QUICK = FitConfig(keypoint_iters=60, silhouette_iters=0)
+
+
+@pytest.fixture(scope="module")
+def synth():
+    from reconstruct.data.synthetic.generator import SyntheticConfig, build_synthetic_scene
+
+    cfg = SyntheticConfig(seed=0, num_frames=3, image_size=160, num_eval_azimuths=1, eval_frames=1,
+                          texture_size=64)
+    return build_synthetic_scene(cfg, progress=False)
+
+
+def _u8(x: np.ndarray) -> np.ndarray:
+    return np.clip(np.asarray(x) * 255 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _bitten(mask: np.ndarray) -> np.ndarray:
+    """The mask with a block of the person's middle cleared: what the user says the segmenter got wrong
+    (as the wall between an arm and a skirt); hole filling would close it, the user's mask keeps it."""
+    out = mask.copy()
+    ys, xs = np.nonzero(mask > 0.5)
+    cy, cx = int(ys.mean()), int(xs.mean())
+    out[cy - 2:cy + 2, cx - 2:cx + 1] = 0.0
+    return out
+
+
+# ----- reading one mask --------------------------------------------------------------------------------
+def test_a_mask_image_is_its_alpha_or_its_brightness(tmp_path):
+    a = np.zeros((20, 10), np.uint8)
+    a[5:15, 2:8] = 255
+    a[0, 0] = 128
+    rgba = np.zeros((20, 10, 4), np.uint8)
+    rgba[..., :3] = 255 - a[..., None]  # colours that say the opposite: the alpha is what counts
+    rgba[..., 3] = a
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "cut.png")
+    Image.fromarray(a, "L").save(tmp_path / "grey.png")
+    Image.fromarray(np.repeat(a[..., None], 3, -1), "RGB").save(tmp_path / "rgb.png")
+    Image.fromarray(a.astype(np.uint16) * 257).save(tmp_path / "grey16.png")
+    opaque = rgba.copy()
+    opaque[..., 3] = 255
+    Image.fromarray(opaque, "RGBA").save(tmp_path / "opaque.png")
+    for name in ("cut.png", "grey.png", "rgb.png", "grey16.png"):
+        m = mask_from_image(tmp_path / name)
+        assert m.dtype == np.float32 and m.shape == (20, 10), name
+        np.testing.assert_allclose(m, a / 255.0, atol=1e-6, err_msg=name)
+    assert image_alpha(tmp_path / "grey.png") is None
+    assert image_alpha(tmp_path / "opaque.png") is None  # opaque everywhere: not a cut-out
+    # an opaque RGBA image is read by its brightness, as any other picture
+    np.testing.assert_allclose(mask_from_image(tmp_path / "opaque.png"), 1.0 - a / 255.0, atol=2 / 255)
+
+
+def test_a_mask_of_another_resolution_is_resized_and_another_shape_is_refused(tmp_path):
+    a = np.zeros((40, 20), np.float32)
+    a[10:30, 5:15] = 1.0
+    Image.fromarray(_u8(a), "L").save(tmp_path / "half.png")
+    Image.fromarray(_u8(a[:, :18]), "L").save(tmp_path / "narrow.png")
+    Image.fromarray(np.zeros((10, 10), np.uint8)).save(tmp_path / "frame.png")
+    m, src = read_user_masks(tmp_path / "half.png", tmp_path / "frame.png", names=["frame.png"],
+                             indices=np.array([0]), source_size=(40, 80))
+    assert src == str(tmp_path / "half.png") and m.shape == (1, 80, 40)
+    # bilinear at twice the size: the block's inside stays person, far outside stays empty
+    assert m[0, 30:50, 14:26].min() > 0.99 and m[0, :15].max() < 0.01
+    with pytest.raises(InputError, match=r"narrow.png: the mask is 18x40 pixels, the frame of frame.png is 40x80"):
+        read_user_masks(tmp_path / "narrow.png", tmp_path / "frame.png", names=["frame.png"],
+                        indices=np.array([0]), source_size=(40, 80))
+    with pytest.raises(FileNotFoundError, match="nothere.png: no such mask"):
+        read_user_masks(tmp_path / "nothere.png", tmp_path / "frame.png", names=["frame.png"],
+                        indices=np.array([0]), source_size=(10, 10))
+
+
+def test_masks_follow_the_frames_turns_and_crop(tmp_path):
+    """A mask is turned as its frame was (a lying person read standing) and cropped with it, so that
+    it lies on the same pixels as the frame ``prepare`` keeps."""
+    img = np.zeros((30, 50, 3), np.uint8)
+    img[5:12, 10:40] = 255
+    Image.fromarray(img).save(tmp_path / "lying.png")
+    Image.fromarray(img[..., 0]).save(tmp_path / "lying_mask.png")
+    crop = Crop(2.0, 4.0, 20.0, 40.0, 10, 20)
+    m, _ = read_user_masks(tmp_path / "lying_mask.png", tmp_path / "lying.png", names=["lying.png"],
+                           indices=np.array([0]), source_size=(30, 50), turns=1,
+                           transform=lambda x: apply_crop(x[None], crop)[0])
+    frame = apply_crop(np.ascontiguousarray(np.rot90(img[..., 0] / 255.0, 1), np.float32)[None], crop)[0]
+    assert m.shape == (1, 20, 10) and frame.max() == 1.0
+    np.testing.assert_allclose(m[0], frame, atol=1e-6)
+    # a quarter turn the other way puts the block elsewhere: the turn is not a no-op
+    other, _ = read_user_masks(tmp_path / "lying_mask.png", tmp_path / "lying.png", names=["lying.png"],
+                               indices=np.array([0]), source_size=(30, 50), turns=3,
+                               transform=lambda x: apply_crop(x[None], crop)[0])
+    assert np.abs(other[0] - frame).max() > 0.5
+
+
+def test_a_folder_of_masks_is_matched_by_name_then_by_order(tmp_path):
+    shots, masks, plain = tmp_path / "shots", tmp_path / "masks", tmp_path / "plain"
+    for d in (shots, masks, plain):
+        d.mkdir()
+    for k, name in enumerate(("a.jpg", "b.jpg", "c.jpg")):
+        Image.fromarray(np.zeros((8, 6, 3), np.uint8)).save(shots / name)
+        # named as the frame with a suffix, in an order that their names alone would not give
+        Image.fromarray(np.full((8, 6), 40 * (k + 1), np.uint8)).save(masks / f"{name[0]}_mask.png")
+        Image.fromarray(np.full((8, 6), 40 * (k + 1), np.uint8)).save(plain / f"{k + 10:03d}.png")
+    (masks / "notes.txt").write_text("not a mask")
+    names, idx = ["a.jpg", "c.jpg"], np.array([0, 2])  # --every 2
+    by_name, _ = read_user_masks(masks, shots, names=names, indices=idx, source_size=(6, 8))
+    by_order, _ = read_user_masks(plain, shots, names=names, indices=idx, source_size=(6, 8))
+    np.testing.assert_allclose(by_name[:, 0, 0], [40 / 255, 120 / 255], atol=1e-6)
+    np.testing.assert_allclose(by_order[:, 0, 0], [40 / 255, 120 / 255], atol=1e-6)
+    (plain / "999.png").write_bytes((plain / "010.png").read_bytes())
+    with pytest.raises(InputError, match=r"plain: holds 4 mask images and no mask named as the frame a.jpg.*"
+                                         r"one mask per image in the same order \(3\)"):
+        read_user_masks(plain, shots, names=names, indices=idx, source_size=(6, 8))
+    with pytest.raises(InputError, match=r"one mask image for 2 frames of shots"):
+        read_user_masks(masks / "a_mask.png", shots, names=names, indices=idx, source_size=(6, 8))
+
+
+def test_a_mask_video_gives_one_mask_per_frame(tmp_path):
+    import imageio.v3 as iio
+
+    T, H, W = 6, 64, 48
+    frames = np.zeros((T, H, W, 3), np.uint8)
+    for t in range(T):
+        frames[t, 8:56, 4 + 4 * t:20 + 4 * t] = 255  # a block that walks right
+    iio.imwrite(tmp_path / "clip.mp4", frames, plugin="pyav", codec="libx264", fps=10)
+    iio.imwrite(tmp_path / "alpha.mp4", frames, plugin="pyav", codec="libx264", fps=10)
+    names = [f"clip.mp4 frame {i}" for i in (0, 2, 4)]
+    m, src = read_user_masks(tmp_path / "alpha.mp4", tmp_path / "clip.mp4", names=names,
+                             indices=np.array([0, 2, 4]), source_size=(W, H), every=2)
+    assert src == str(tmp_path / "alpha.mp4") and m.shape == (3, H, W)
+    for k, t in enumerate((0, 2, 4)):
+        assert ((m[k] > 0.5) == (frames[t, ..., 0] > 127)).mean() > 0.99
+    with pytest.raises(InputError, match=r"alpha.mp4: gives 6 mask frames, clip.mp4 gives 3"):
+        read_user_masks(tmp_path / "alpha.mp4", tmp_path / "clip.mp4", names=names,
+                        indices=np.array([0, 2, 4]), source_size=(W, H))
+    with pytest.raises(InputError, match=r"alpha.mp4: the mask is 48x64 pixels, the frame of clip.mp4 is 40x64"):
+        read_user_masks(tmp_path / "alpha.mp4", tmp_path / "clip.mp4", names=names,
+                        indices=np.array([0, 2, 4]), source_size=(40, 64), every=2)
+
+
+# ----- through prepare ---------------------------------------------------------------------------------
+def test_prepare_takes_the_users_masks_as_they_are(synth, tmp_path):
+    """The test double reports the scene's true masks; the user's (the truth with a block of the
+    middle cleared, an enclosed hole that hole filling would close) are what the scene keeps."""
+    shots, masks = tmp_path / "shots", tmp_path / "masks"
+    shots.mkdir()
+    masks.mkdir()
+    want = []
+    for k in range(3):
+        Image.fromarray(_u8(synth.frames[k].image)).save(shots / f"f{k}.png")
+        m = _bitten(synth.frames[k].mask)
+        want.append(m)
+        Image.fromarray(_u8(m)).save(masks / f"f{k}.png")
+    out = tmp_path / "scene"
+    _, report = prepare_video(shots, out, detector=SyntheticSceneDetector(synth), fit_config=QUICK,
+                              masks=masks, crop=False, log=lambda m: None)
+    assert report["masks"]["source"] == str(masks) and report["masks"]["holes_filled"] == 0
+    assert fill_holes(want[0])[1] == 1  # the segmenter's mask with this bite would have been closed
+    scene = read_scene(out)
+    for k, f in enumerate(scene.frames):
+        assert np.abs(f.mask - want[k]).max() < 1 / 255 + 1e-6
+        assert (f.image[want[k] == 0] == 0).all()  # the bite shows no wall: training sees it empty
+    # the same without the user's masks: the detector's (the truth) are kept
+    _, plain = prepare_video(shots, tmp_path / "plain", detector=SyntheticSceneDetector(synth), fit_config=QUICK,
+                             crop=False, log=lambda m: None)
+    assert plain["masks"]["source"] == "segmenter"
+    first = read_scene(tmp_path / "plain").frames[0]
+    np.testing.assert_allclose(first.mask, synth.frames[0].mask, atol=1e-6)
+
+
+def test_prepare_takes_a_cut_outs_alpha_unless_told_not_to(synth, tmp_path):
+    rgba = np.concatenate([_u8(synth.frames[0].image), _u8(_bitten(synth.frames[0].mask))[..., None]], -1)
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "cutout.png")
+    _, report = prepare_video(tmp_path / "cutout.png", tmp_path / "a", detector=SyntheticSceneDetector(synth),
+                              fit_config=QUICK, crop=False, log=lambda m: None)
+    assert report["masks"]["source"] == "the input's transparency"
+    mask = read_scene(tmp_path / "a").frames[0].mask
+    assert np.abs(mask - _bitten(synth.frames[0].mask)).max() < 1 / 255 + 1e-6
+    _, report = prepare_video(tmp_path / "cutout.png", tmp_path / "b", detector=SyntheticSceneDetector(synth),
+                              fit_config=QUICK, crop=False, use_alpha=False, log=lambda m: None)
+    assert report["masks"]["source"] == "segmenter"
+    saved = json.loads((tmp_path / "b" / "prepare_report.json").read_text())
+    assert saved["masks"]["source"] == "segmenter"
+
+
+def test_prepare_names_a_bad_mask_and_writes_nothing(synth, tmp_path):
+    Image.fromarray(_u8(synth.frames[0].image)).save(tmp_path / "person.png")
+    Image.fromarray(np.zeros((50, 20), np.uint8)).save(tmp_path / "wrong.png")
+    out = tmp_path / "scene"
+    with pytest.raises(InputError, match=r"wrong.png: the mask is 20x50 pixels, the frame of person.png is 160x160"):
+        prepare_video(tmp_path / "person.png", out, detector=SyntheticSceneDetector(synth), fit_config=QUICK,
+                      masks=tmp_path / "wrong.png", crop=False, log=lambda m: None)
+    assert not out.exists()
