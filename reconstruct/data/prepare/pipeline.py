@@ -333,7 +333,11 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
             rows = [ReportFrame(kept_names[k], frames[keep][k], kept.masks[k],
                                 None if kept.raw_masks is None else kept.raw_masks[k], fit.fit_masks[k],
                                 float(fit.iou[k]), sides[k]) for k in shown]
-            write_report_image(inner / REPORT_IMAGE, rows, title)
+            if user is None:
+                write_report_image(inner / REPORT_IMAGE, rows, title)
+            else:
+                write_report_image(inner / REPORT_IMAGE, rows, title,
+                                   mask_title="your mask (green: more, red: less than the segmenter's)")
         report["seconds"]["total"] = time.perf_counter() - t0
         (inner / REPORT_NAME).write_text(json.dumps(report, indent=1))
         if out.exists():

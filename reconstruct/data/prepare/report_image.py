@@ -32,7 +32,10 @@ def pick_frames(count: int, most: int = 4) -> list[int]:
     return sorted({int(round(x)) for x in np.linspace(0, count - 1, most)})
 
 
-def write_report_image(path: str | os.PathLike, frames: list[ReportFrame], title: str) -> Path:
+def write_report_image(path: str | os.PathLike, frames: list[ReportFrame], title: str,
+                       mask_title: str = "mask (green added, red removed)") -> Path:
+    """``mask_title``: what the mask panel's green and red say (the refinement's, or where the
+    user's own masks differ from the segmenter's)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -55,7 +58,7 @@ def write_report_image(path: str | os.PathLike, frames: list[ReportFrame], title
         edge = m & ~_erode(m)
         fit[edge] = [1.0, 1.0, 0.0]
         side = np.where(f.side.silhouette[..., None], np.array([0.2, 0.5, 1.0]), np.array([1.0, 1.0, 1.0]))
-        panels = [(img, f"{f.name}"), (over, "mask (green added, red removed)"),
+        panels = [(img, f"{f.name}"), (over, mask_title),
                   (fit, f"fitted body, IoU {f.iou:.3f}"), (side, f"side view, lean {f.side.lean_deg:+.1f} deg")]
         for c, (im, label) in enumerate(panels):
             ax = axes[r, c]
