@@ -249,6 +249,10 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
                 masks[i], n = fill_mask_holes(masks[i])
                 holes += n
         det.masks = masks
+        if holes:
+            log(f"filled {holes} small {'hole' if holes == 1 else 'holes'} in the person masks (green in "
+                f"prepare_report.png); where one is background seen through a gap (between an arm and the "
+                f"body), the avatar will wear it: --no-fill-holes keeps them, --masks gives your own masks")
     keep, dropped = person_frames(det)
     for d in dropped:
         pos = d.pop("position")
