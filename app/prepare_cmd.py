@@ -28,7 +28,7 @@ def add_prepare_parser(sub) -> None:
                         "or a folder of mask images (named as the frames' images, or one per frame in order); "
                         "white or opaque: person (docs/prepare.md)")
     s.add_argument("--no-alpha", action="store_true",
-                   help="segment a cut-out (an image with transparency) instead of taking its alpha as the mask")
+                   help="segment a cut-out (an image or a video with transparency) instead of taking its alpha as the mask")
     s.add_argument("--no-refine", action="store_true", help="keep the segmenter's mask (no GrabCut refinement)")
     s.add_argument("--no-fill-holes", action="store_true", help="keep small enclosed holes in the mask")
     s.add_argument("--no-turn", action="store_true",

@@ -210,3 +210,76 @@ def test_prepare_names_a_bad_mask_and_writes_nothing(synth, tmp_path):
         prepare_video(tmp_path / "person.png", out, detector=SyntheticSceneDetector(synth), fit_config=QUICK,
                       masks=tmp_path / "wrong.png", crop=False, log=lambda m: None)
     assert not out.exists()
+
+
+# ----- cut-out videos ----------------------------------------------------------------------------------
+def _alpha_video(path, codec: str, pix: str, frames: np.ndarray, fps: int = 10):
+    """Write (T,H,W,4) uint8 RGBA ``frames`` with PyAV (``codec`` keeping alpha in ``pix``)."""
+    import av
+
+    with av.open(str(path), "w") as c:
+        st = c.add_stream(codec, rate=fps)
+        st.width, st.height, st.pix_fmt = frames.shape[2], frames.shape[1], pix
+        for f in frames:
+            for p in st.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(f), format="rgba")):
+                c.mux(p)
+        for p in st.encode():
+            c.mux(p)
+    return path
+
+
+def _cutout_clip(T=5, H=48, W=64) -> np.ndarray:
+    rgba = np.zeros((T, H, W, 4), np.uint8)
+    rgba[..., :3] = (250, 20, 20)  # a colour under the transparent pixels that must not show
+    for t in range(T):
+        rgba[t, 8:40, 8 + 6 * t:24 + 6 * t] = (30, 90, 160, 255)  # the person, walking right
+    return rgba
+
+
+@pytest.mark.parametrize("codec,pix,suffix", [("libvpx-vp9", "yuva420p", ".webm"), ("qtrle", "argb", ".mov"),
+                                              ("prores_ks", "yuva444p10le", ".mov")])
+def test_a_cut_out_videos_alpha_is_the_mask_and_its_frames_are_laid_over_the_wall(tmp_path, codec, pix, suffix):
+    """WebM (VP9 with alpha, which ffmpeg's own decoder drops), QuickTime Animation and ProRes 4444."""
+    from reconstruct.data.prepare.alpha_video import CUTOUT_BACKGROUND, alpha_decoder
+    from reconstruct.data.prepare.video import read_video
+
+    rgba = _cutout_clip()
+    path = _alpha_video(tmp_path / f"cutout{suffix}", codec, pix, rgba)
+    assert alpha_decoder(path) is not None
+    v = read_video(path, max_size=None, every=2)
+    assert v.frames.shape == (3, 48, 64, 3) and v.indices.tolist() == [0, 2, 4]
+    inside, outside = v.frames[:, 20, 12].astype(int), v.frames[:, 2, 2].astype(int)
+    assert np.abs(inside[0] - [30, 90, 160]).max() <= 12  # lossy codecs: within a few levels
+    assert np.abs(outside - np.array(CUTOUT_BACKGROUND)).max() <= 12  # the wall, not the red underneath
+    m, src = read_user_masks(None, path, names=[f"f{i}" for i in (0, 2, 4)], indices=v.indices,
+                             source_size=v.source_size, every=2)
+    assert src == "the input's transparency" and m.shape == (3, 48, 64)
+    for k, t in enumerate((0, 2, 4)):
+        assert ((m[k] > 0.5) == (rgba[t, ..., 3] > 127)).mean() > 0.99
+    assert read_user_masks(None, path, names=["f0", "f2", "f4"], indices=v.indices, source_size=v.source_size,
+                           every=2, use_alpha=False) == (None, "segmenter")
+
+
+def test_a_video_without_alpha_or_with_opaque_alpha_goes_to_the_segmenter(tmp_path):
+    import imageio.v3 as iio
+
+    from reconstruct.data.prepare.alpha_video import alpha_decoder
+
+    rgba = _cutout_clip(T=3)
+    iio.imwrite(tmp_path / "plain.mp4", rgba[..., :3], plugin="pyav", codec="libx264", fps=10)
+    assert alpha_decoder(tmp_path / "plain.mp4") is None
+    rgba[..., 3] = 255
+    opaque = _alpha_video(tmp_path / "opaque.mov", "qtrle", "argb", rgba)
+    assert alpha_decoder(opaque) == "qtrle"
+    assert read_user_masks(None, opaque, names=["a", "b", "c"], indices=np.arange(3),
+                           source_size=(64, 48)) == (None, "segmenter")
+
+
+def test_prepare_takes_a_cut_out_videos_alpha(synth, tmp_path):
+    rgba = np.stack([np.concatenate([_u8(f.image), _u8(_bitten(f.mask))[..., None]], -1) for f in synth.frames[:3]])
+    path = _alpha_video(tmp_path / "cutout.mov", "qtrle", "argb", rgba)  # lossless: the mask exactly
+    _, report = prepare_video(path, tmp_path / "scene", detector=SyntheticSceneDetector(synth), fit_config=QUICK,
+                              crop=False, log=lambda m: None)
+    assert report["masks"]["source"] == "the input's transparency" and report["frames_used"] == 3
+    for k, f in enumerate(read_scene(tmp_path / "scene").frames):
+        assert np.abs(f.mask - _bitten(synth.frames[k].mask)).max() < 1 / 255 + 1e-6

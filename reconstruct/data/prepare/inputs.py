@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .alpha_video import CUTOUT_BACKGROUND
 from .video import VIDEO_SUFFIXES, Video, VideoError, read_video, working_size
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff", ".heic", ".heif", ".avif")
@@ -38,9 +39,6 @@ def input_kind(path: str | os.PathLike) -> str:
     return "video"
 
 
-# what a cut-out's transparent pixels are shown over (a light, neutral wall): whatever colour they
-# hold (often black, or the colour the background had before it was cut away) is not the scene's
-CUTOUT_BACKGROUND = (209, 209, 204)
 
 
 # single-channel modes wider than 8 bits (a 16-bit grayscale PNG or TIFF, 32-bit integer or float

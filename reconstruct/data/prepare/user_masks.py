@@ -15,7 +15,8 @@ Where masks come from, first found first:
   image, optionally with ``_mask``, ``-mask``, ``_alpha``, ``_matte`` after the name), else by order:
   its images in name order are the input's frames in order, every one of them (``--every`` and
   ``--max-frames`` pick from both alike).
-* the input's own transparency: a cut-out PNG/WebP (or a folder of them) whose alpha is not opaque
+* the input's own transparency: a cut-out PNG/WebP (or a folder of them), or a cut-out video (WebM
+  with alpha, ProRes 4444, QuickTime Animation or PNG: ``alpha_video.py``), whose alpha is not opaque
   everywhere. ``--no-alpha`` gives such an input to the segmenter instead.
 
 A mask must show the frame it belongs to: the same size after the frame's orientation (EXIF) and the
@@ -31,7 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from .inputs import IMAGE_SUFFIXES, WIDE_MODES, InputError, _register_heif, input_kind, list_images
-from .video import VideoError, read_video
+from .alpha_video import alpha_decoder, rgba_frames
+from .video import VideoError, display_rotation, read_video
 
 # what may follow a frame's name in its mask's name (frame_0001.jpg -> frame_0001_mask.png)
 MASK_NAME_SUFFIXES = ("", "_mask", "-mask", ".mask", "_alpha", "-alpha", "_matte", "-matte")
@@ -180,7 +182,28 @@ def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLi
         else:
             files = _matched_files(path, input_path, kind, names, indices)
         return np.stack([finish(mask_from_image(f), str(f)) for f in files]), str(path)
-    if use_alpha and kind != "video":
+    if use_alpha and kind == "video":
+        decoder = alpha_decoder(input_path)
+        if decoder is None:
+            return None, "segmenter"
+        quarter = (display_rotation(input_path) + turns) % 4
+        alphas, opaque = [], True
+        for i, rgba in enumerate(rgba_frames(input_path, decoder)):
+            if i % every:
+                continue
+            a = rgba[..., 3]
+            opaque = opaque and bool(a.min() == 255)
+            alphas.append(place(np.ascontiguousarray(np.rot90(a, quarter)).astype(np.float32) / 255.0,
+                                f"{input_path} frame {i}"))
+            if max_frames and len(alphas) >= max_frames:
+                break
+        if opaque:
+            return None, "segmenter"
+        if len(alphas) != T:
+            raise InputError(f"{input_path}: gave {len(alphas)} alpha frames and {T} colour frames; expected one "
+                             f"alpha per frame")
+        return np.stack(alphas), "the input's transparency"
+    if use_alpha:
         files = [input_path] if kind == "image" else [input_path / n for n in names]
         alphas = []
         for f in files:

@@ -1,4 +1,5 @@
-"""Read a video file (mp4, mov, anything ffmpeg decodes) into RGB frames, resized to a working size."""
+"""Read a video file (mp4, mov, anything ffmpeg decodes) into RGB frames, resized to a working size;
+a cut-out video's frames (with alpha, ``alpha_video.py``) laid over a light wall."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .alpha_video import alpha_decoder, over_wall, rgba_frames
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm")
 
@@ -78,10 +81,14 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
     frames, indices = [], []
     fps = 0.0
     turns = (display_rotation(path) + turns) % 4
+    decoder = alpha_decoder(path)
     try:
         meta = iio.immeta(path, plugin="pyav")
         fps = float(meta.get("fps") or 0.0)
-        for i, frame in enumerate(iio.imiter(path, plugin="pyav", format="rgb24")):
+        # a cut-out video (frames with alpha) is laid over the light wall, as a cut-out photo is
+        decoded = (iio.imiter(path, plugin="pyav", format="rgb24") if decoder is None
+                   else (over_wall(f) for f in rgba_frames(path, decoder)))
+        for i, frame in enumerate(decoded):
             if i % every:
                 continue
             if turns:
