@@ -283,3 +283,16 @@ def test_prepare_takes_a_cut_out_videos_alpha(synth, tmp_path):
     assert report["masks"]["source"] == "the input's transparency" and report["frames_used"] == 3
     for k, f in enumerate(read_scene(tmp_path / "scene").frames):
         assert np.abs(f.mask - _bitten(synth.frames[k].mask)).max() < 1 / 255 + 1e-6
+
+
+def test_a_cut_out_video_given_as_the_masks_gives_its_alpha_not_its_brightness(tmp_path):
+    import imageio.v3 as iio
+
+    rgba = _cutout_clip(T=3)
+    rgba[..., :3] = 255 - rgba[..., :3]  # colours whose brightness would say something else
+    masks = _alpha_video(tmp_path / "matte.mov", "qtrle", "argb", rgba)
+    iio.imwrite(tmp_path / "clip.mp4", rgba[..., :3], plugin="pyav", codec="libx264", fps=10)
+    m, src = read_user_masks(masks, tmp_path / "clip.mp4", names=["a", "b", "c"], indices=np.arange(3),
+                             source_size=(64, 48))
+    assert src == str(masks)
+    np.testing.assert_allclose(m, rgba[..., 3] / 255.0, atol=1e-6)

@@ -10,8 +10,8 @@ keypoints.
 Where masks come from, first found first:
 
 * ``--masks PATH``: a mask video (a matting network's alpha output), one mask image (for a photo) or a
-  folder of mask images. An image's mask is its alpha channel when it has transparency, else its
-  brightness (white: person). A folder is matched to the input by name (a mask named as the frame's
+  folder of mask images. An image's or a video's mask is its alpha channel when it has transparency,
+  else its brightness (white: person). A folder is matched to the input by name (a mask named as the frame's
   image, optionally with ``_mask``, ``-mask``, ``_alpha``, ``_matte`` after the name), else by order:
   its images in name order are the input's frames in order, every one of them (``--every`` and
   ``--max-frames`` pick from both alike).
@@ -130,6 +130,26 @@ def _fit_to_frame(mask: np.ndarray, size: tuple[int, int], where: str, frame_wha
     return np.asarray(Image.fromarray(mask, mode="F").resize((W, H), Image.Resampling.BILINEAR))
 
 
+def video_alpha(path: Path, decoder: str, place, *, turns: int = 0, every: int = 1, max_frames: int | None = None,
+                opaque: bool = False) -> np.ndarray | None:
+    """(T,H,W) float32: the alpha of a video's frames (every ``every``-th, at most ``max_frames``),
+    upright (display rotation) and turned ``turns`` as ``read_video`` turns its frames, each passed
+    through ``place`` (frame size check and crop); None when it is opaque everywhere, unless ``opaque``."""
+    quarter = (display_rotation(path) + turns) % 4
+    alphas, all_opaque = [], True
+    for i, rgba in enumerate(rgba_frames(path, decoder)):
+        if i % every:
+            continue
+        a = rgba[..., 3]
+        all_opaque = all_opaque and bool(a.min() == 255)
+        alphas.append(place(np.ascontiguousarray(np.rot90(a, quarter)).astype(np.float32) / 255.0, f"{path} frame {i}"))
+        if max_frames and len(alphas) >= max_frames:
+            break
+    if not alphas or (all_opaque and not opaque):
+        return None
+    return np.stack(alphas)
+
+
 def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLike, *, names: list[str],
                     indices: np.ndarray, source_size: tuple[int, int], turns: int = 0, transform=None,
                     every: int = 1, max_frames: int | None = None, use_alpha: bool = True
@@ -159,6 +179,13 @@ def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLi
             raise FileNotFoundError(f"{path}: no such mask video, image or folder (expected --masks to name a mask "
                                     f"video, a mask image or a folder of mask images)")
         mkind = input_kind(path)
+        decoder = alpha_decoder(path) if mkind == "video" else None
+        if decoder is not None:  # a cut-out video given as the masks: its alpha, as a mask image's
+            out = video_alpha(path, decoder, place, turns=turns, every=every, max_frames=max_frames, opaque=True)
+            if len(out) != T:
+                raise InputError(f"{path}: gives {len(out)} mask frames, {input_path.name} gives {T}; "
+                                 f"expected one mask frame per frame")
+            return out, str(path)
         if mkind == "video":
             def grey(frame: np.ndarray) -> np.ndarray:  # read_video has turned it already
                 m = place(frame.astype(np.float32).mean(-1) / 255.0, f"{path}")
@@ -184,25 +211,14 @@ def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLi
         return np.stack([finish(mask_from_image(f), str(f)) for f in files]), str(path)
     if use_alpha and kind == "video":
         decoder = alpha_decoder(input_path)
-        if decoder is None:
-            return None, "segmenter"
-        quarter = (display_rotation(input_path) + turns) % 4
-        alphas, opaque = [], True
-        for i, rgba in enumerate(rgba_frames(input_path, decoder)):
-            if i % every:
-                continue
-            a = rgba[..., 3]
-            opaque = opaque and bool(a.min() == 255)
-            alphas.append(place(np.ascontiguousarray(np.rot90(a, quarter)).astype(np.float32) / 255.0,
-                                f"{input_path} frame {i}"))
-            if max_frames and len(alphas) >= max_frames:
-                break
-        if opaque:
+        alphas = None if decoder is None else video_alpha(input_path, decoder, place, turns=turns, every=every,
+                                                          max_frames=max_frames)
+        if alphas is None:
             return None, "segmenter"
         if len(alphas) != T:
             raise InputError(f"{input_path}: gave {len(alphas)} alpha frames and {T} colour frames; expected one "
                              f"alpha per frame")
-        return np.stack(alphas), "the input's transparency"
+        return alphas, "the input's transparency"
     if use_alpha:
         files = [input_path] if kind == "image" else [input_path / n for n in names]
         alphas = []
@@ -215,4 +231,4 @@ def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLi
     return None, "segmenter"
 
 
-__all__ = ["MASK_NAME_SUFFIXES", "has_transparency", "image_alpha", "mask_from_image", "read_user_masks"]
+__all__ = ["MASK_NAME_SUFFIXES", "has_transparency", "image_alpha", "mask_from_image", "read_user_masks", "video_alpha"]
