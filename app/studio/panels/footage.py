@@ -16,7 +16,8 @@ def draw(ui: PanelContext) -> None:
     if fc is None:
         return
     st = fc.state
-    wrapped_hint("A video, an image (jpg/png/webp) or a folder of images of one person, front view, whole body.")
+    wrapped_hint("A video, an image (jpg/png/webp) or a folder of images of one person, front view, whole body. "
+                 "A cut-out (with transparency) is its own mask; other masks of yours go in 'masks'.")
     ch, text = imgui.input_text("file or folder", st.source)
     ui.mark("footage_path")
     if ch:
