@@ -26,7 +26,8 @@ def add_prepare_parser(sub) -> None:
     s.add_argument("--masks", metavar="PATH",
                    help="your own person masks instead of the segmenter's: a mask video, a mask image (for a photo) "
                         "or a folder of mask images (named as the frames' images, or one per frame in order); "
-                        "white or opaque: person (docs/prepare.md)")
+                        "white or opaque: person; or a scene folder prepare wrote from this input, its frames/mask "
+                        "fixed (docs/prepare.md)")
     s.add_argument("--no-alpha", action="store_true",
                    help="segment a cut-out (an image or a video with transparency) instead of taking its alpha as the mask")
     s.add_argument("--no-refine", action="store_true", help="keep the segmenter's mask (no GrabCut refinement)")

@@ -290,3 +290,55 @@ def test_a_cut_out_video_given_as_the_masks_gives_its_alpha_not_its_brightness(t
                              source_size=(64, 48))
     assert src == str(masks)
     np.testing.assert_allclose(m, rgba[..., 3] / 255.0, atol=1e-6)
+
+
+def test_a_scene_folders_fixed_masks_are_given_back(synth, tmp_path):
+    """prepare -> the user fixes SCENE/frames/mask -> prepare --masks SCENE: the same crop takes the
+    fixed masks as they are; another crop (another --size) puts them back into the photo by the old
+    crop first. A scene prepared from another input is refused."""
+    Image.fromarray(_u8(synth.frames[0].image)).save(tmp_path / "person.png")
+    first = tmp_path / "first"
+    prepare_video(tmp_path / "person.png", first, detector=SyntheticSceneDetector(synth), fit_config=QUICK,
+                  log=lambda m: None)
+    mask_file = first / "frames" / "mask" / "000000.png"
+    fixed = _bitten(np.asarray(Image.open(mask_file), np.float32) / 255.0)
+    Image.fromarray(_u8(fixed)).save(mask_file)
+    _, report = prepare_video(tmp_path / "person.png", tmp_path / "again", detector=SyntheticSceneDetector(synth),
+                              fit_config=QUICK, masks=first, log=lambda m: None)
+    assert report["masks"]["source"] == str(first)
+    np.testing.assert_allclose(read_scene(tmp_path / "again").frames[0].mask, fixed, atol=1 / 255 + 1e-6)
+    Image.fromarray(_u8(synth.frames[1].image)).save(tmp_path / "other.png")
+    with pytest.raises(InputError, match=r"first: was prepared from person.png, not other.png"):
+        prepare_video(tmp_path / "other.png", tmp_path / "x", detector=SyntheticSceneDetector(synth),
+                      fit_config=QUICK, masks=first, log=lambda m: None)
+
+
+def test_a_scenes_masks_go_back_into_the_source_frame_by_its_crop(tmp_path):
+    """A scene cropped round the person (a box inside the photo, resized): its masks are put back into
+    the photo where that crop took them from, then cropped as this prepare crops. Checked against the
+    photo's own mask cropped the new way."""
+    from reconstruct.data.prepare.user_masks import scene_masks
+
+    H0, W0 = 120, 90
+    src = np.zeros((H0, W0), np.float32)
+    src[30:100, 35:60] = 1.0
+    old = Crop(20.0, 10.0, 60.0, 100.0, 30, 50)  # half resolution of a box inside the photo
+    scene = tmp_path / "scene"
+    (scene / "frames" / "mask").mkdir(parents=True)
+    Image.fromarray(_u8(apply_crop(src[None], old)[0])).save(scene / "frames" / "mask" / "000003.png")
+    (scene / "prepare_report.json").write_text(json.dumps({"crop": old.to_dict(), "source_frame_size": [W0, H0],
+                                                           "video": str(tmp_path / "photo.png")}))
+    new = Crop(0.0, 0.0, 90.0, 120.0, 45, 60)  # the whole photo this time
+    place = lambda m, where: apply_crop(m[None], new)[0]  # noqa: E731
+    got = scene_masks(scene, tmp_path / "photo.png", indices=np.array([3, 4]), source_size=(W0, H0), crop=new,
+                      place=place)
+    want = apply_crop(src[None], new)[0]
+    assert got.shape == (2, 60, 45) and got[1].max() == 0.0  # frame 4: none in the scene, an empty mask
+    assert ((got[0] > 0.5) == (want > 0.5)).mean() > 0.98 and np.abs(got[0] - want).mean() < 0.03
+    # the old crop again: the scene's masks as they are
+    same = scene_masks(scene, tmp_path / "photo.png", indices=np.array([3]), source_size=(W0, H0), crop=old,
+                       place=place)
+    np.testing.assert_allclose(same[0], np.asarray(Image.open(scene / "frames" / "mask" / "000003.png")) / 255.0,
+                               atol=1e-6)
+    with pytest.raises(InputError, match=r"scene: was prepared from frames of 90x120, photo.png's frames are 120x90"):
+        scene_masks(scene, tmp_path / "photo.png", indices=np.array([3]), source_size=(120, 90), crop=new, place=place)

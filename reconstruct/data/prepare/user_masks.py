@@ -26,6 +26,7 @@ is resized). Anything else is an error naming the file and both sizes.
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -33,6 +34,7 @@ import numpy as np
 
 from .inputs import IMAGE_SUFFIXES, WIDE_MODES, InputError, _register_heif, input_kind, list_images
 from .alpha_video import alpha_decoder, rgba_frames
+from .crop import Crop
 from .video import VideoError, display_rotation, read_video
 
 # what may follow a frame's name in its mask's name (frame_0001.jpg -> frame_0001_mask.png)
@@ -150,15 +152,65 @@ def video_alpha(path: Path, decoder: str, place, *, turns: int = 0, every: int =
     return np.stack(alphas)
 
 
+def is_prepared_scene(path: Path) -> bool:
+    """Whether ``path`` is a scene folder ``prepare`` wrote (its masks can be given back with --masks)."""
+    return (path / "prepare_report.json").is_file() and (path / "frames" / "mask").is_dir()
+
+
+def scene_masks(scene: Path, input_path: Path, *, indices: np.ndarray, source_size: tuple[int, int],
+                crop: Crop | None, place) -> np.ndarray:
+    """(T,H,W) float32: the masks of a scene folder ``prepare`` wrote from ``input_path`` (edited by
+    the user, say), for the frames ``indices``: as they are where this prepare crops as that one did,
+    else put back into the source frame by that scene's crop and passed through ``place``. A frame
+    the scene dropped (no person) has an empty mask."""
+    from PIL import Image
+
+    report_path = scene / "prepare_report.json"
+    try:
+        report = json.loads(report_path.read_text())
+        was = report["crop"]
+        old = Crop(float(was["x0"]), float(was["y0"]), float(was["width"]), float(was["height"]),
+                   int(was["out_width"]), int(was["out_height"]))
+        W0, H0 = (int(v) for v in report["source_frame_size"])
+        source = Path(str(report["video"])).name
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{report_path}: cannot be read as prepare's report ({type(exc).__name__}: {exc})") from exc
+    if source != input_path.name:
+        raise InputError(f"{scene}: was prepared from {source}, not {input_path.name}; expected the scene folder "
+                         f"prepare wrote from this input")
+    if (W0, H0) != tuple(source_size):
+        raise InputError(f"{scene}: was prepared from frames of {W0}x{H0}, {input_path.name}'s frames are "
+                         f"{source_size[0]}x{source_size[1]} (turned differently?); expected the same frames")
+    same_crop = crop is not None and crop.to_dict() == old.to_dict()
+    out = []
+    for i in indices:
+        f = scene / "frames" / "mask" / f"{int(i):06d}.png"
+        m = (mask_from_image(f) if f.is_file() else np.zeros((old.out_height, old.out_width), np.float32))
+        if m.shape != (old.out_height, old.out_width):
+            raise InputError(f"{f}: is {m.shape[1]}x{m.shape[0]} pixels, its scene's frames are "
+                             f"{old.out_width}x{old.out_height}; expected the mask at its scene's size")
+        if same_crop:
+            out.append(np.clip(m, 0.0, 1.0).astype(np.float32))
+            continue
+        x0, y0, w, h = int(old.x0), int(old.y0), int(old.width), int(old.height)
+        big = np.asarray(Image.fromarray(m, mode="F").resize((w, h), Image.Resampling.BILINEAR))
+        canvas = np.zeros((H0, W0), np.float32)
+        sx0, sy0, sx1, sy1 = max(0, x0), max(0, y0), min(W0, x0 + w), min(H0, y0 + h)
+        if sx1 > sx0 and sy1 > sy0:
+            canvas[sy0:sy1, sx0:sx1] = big[sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0]
+        out.append(place(canvas, str(f)))
+    return np.stack(out)
+
+
 def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLike, *, names: list[str],
                     indices: np.ndarray, source_size: tuple[int, int], turns: int = 0, transform=None,
-                    every: int = 1, max_frames: int | None = None, use_alpha: bool = True
-                    ) -> tuple[np.ndarray | None, str]:
+                    every: int = 1, max_frames: int | None = None, use_alpha: bool = True,
+                    crop: Crop | None = None) -> tuple[np.ndarray | None, str]:
     """(masks (T,H,W) float32 in [0,1] of the frames used, or None; where they came from: the masks
     path, "the input's transparency" or "segmenter"). ``names``/``indices``: the frames ``read_input``
     gave (indices into the file's frames or the folder's images); ``source_size`` (W,H): their size
     after the orientation and ``turns``; ``transform``: the crop applied to the frames, applied alike
-    to each (H,W) mask."""
+    to each (H,W) mask; ``crop``: that crop, where a scene folder's masks may be taken as they are."""
     input_path = Path(input_path)
     kind = input_kind(input_path)
     indices = np.asarray(indices)
@@ -178,6 +230,9 @@ def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLi
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such mask video, image or folder (expected --masks to name a mask "
                                     f"video, a mask image or a folder of mask images)")
+        if path.is_dir() and is_prepared_scene(path):  # a scene's own masks, fixed by the user, given back
+            return scene_masks(path, input_path, indices=indices, source_size=source_size, crop=crop,
+                               place=place), str(path)
         mkind = input_kind(path)
         decoder = alpha_decoder(path) if mkind == "video" else None
         if decoder is not None:  # a cut-out video given as the masks: its alpha, as a mask image's
@@ -231,4 +286,4 @@ def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLi
     return None, "segmenter"
 
 
-__all__ = ["MASK_NAME_SUFFIXES", "has_transparency", "image_alpha", "mask_from_image", "read_user_masks", "video_alpha"]
+__all__ = ["MASK_NAME_SUFFIXES", "has_transparency", "image_alpha", "mask_from_image", "read_user_masks", "scene_masks", "video_alpha"]
