@@ -14,7 +14,8 @@ Where masks come from, first found first:
   else its brightness (white: person). A folder is matched to the input by name (a mask named as the frame's
   image, optionally with ``_mask``, ``-mask``, ``_alpha``, ``_matte`` after the name), else by order:
   its images in name order are the input's frames in order, every one of them (``--every`` and
-  ``--max-frames`` pick from both alike).
+  ``--max-frames`` pick from both alike). Or a scene folder ``prepare`` wrote from the same input, its
+  ``frames/mask/`` fixed by the user (``scene_masks``): put back into the source frame by its crop.
 * the input's own transparency: a cut-out PNG/WebP (or a folder of them), or a cut-out video (WebM
   with alpha, ProRes 4444, QuickTime Animation or PNG: ``alpha_video.py``), whose alpha is not opaque
   everywhere. ``--no-alpha`` gives such an input to the segmenter instead.
@@ -32,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .inputs import IMAGE_SUFFIXES, WIDE_MODES, InputError, _register_heif, input_kind, list_images
 from .alpha_video import alpha_decoder, rgba_frames
 from .crop import Crop
+from .inputs import IMAGE_SUFFIXES, WIDE_MODES, InputError, _register_heif, input_kind, list_images
 from .video import VideoError, display_rotation, read_video
 
 # what may follow a frame's name in its mask's name (frame_0001.jpg -> frame_0001_mask.png)
