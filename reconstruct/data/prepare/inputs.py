@@ -39,14 +39,12 @@ def input_kind(path: str | os.PathLike) -> str:
     return "video"
 
 
-
-
 # single-channel modes wider than 8 bits (a 16-bit grayscale PNG or TIFF, 32-bit integer or float
 # TIFFs): Pillow's convert("RGB") clips them at 255, so a 16-bit photo came out white
 WIDE_MODES = ("I;16", "I;16L", "I;16B", "I;16N", "I", "F")
 
 
-def _wide_to_rgb(im) -> np.ndarray:
+def wide_to_rgb(im) -> np.ndarray:
     """(H,W,3) uint8 grey of a single-channel image in one of ``WIDE_MODES``, scaled by the range its
     type implies: 16-bit modes by 65535; 32-bit integers by 255 or 65535, whichever their largest
     value fits; floats by 1 when they lie in [0, 1] (a linear 0-1 image), else as the integers."""
@@ -84,20 +82,20 @@ def _to_srgb(im):
         return im
 
 
-def _upright_rgb(im) -> np.ndarray:
-    """(H,W,3) uint8 of a PIL image as it is meant to be seen: turned by its EXIF orientation (a phone
-    stores a portrait photo sideways and says so in the tag), its colours in sRGB (``_to_srgb``) and,
-    when it has transparency (a cut-out PNG), laid over ``CUTOUT_BACKGROUND``."""
-    from PIL import Image, ImageOps
+def has_transparency(im) -> bool:
+    """Whether a PIL image carries an alpha channel (or a transparent palette entry)."""
+    return im.mode in ("RGBA", "LA", "PA", "RGBa", "La") or (im.mode == "P" and "transparency" in im.info)
 
-    try:
-        im = ImageOps.exif_transpose(im) or im
-    except Exception:  # noqa: BLE001 - a broken EXIF block: the pixels as stored, not a refused photo
-        pass
+
+def _as_rgb(im) -> np.ndarray:
+    """(H,W,3) uint8 of an upright PIL image: its colours in sRGB (``_to_srgb``) and, when it has
+    transparency (a cut-out PNG), laid over ``CUTOUT_BACKGROUND``."""
+    from PIL import Image
+
     im = _to_srgb(im)
     if im.mode in WIDE_MODES:
-        return _wide_to_rgb(im)
-    if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
+        return wide_to_rgb(im)
+    if has_transparency(im):
         rgba = im.convert("RGBA")
         base = Image.new("RGBA", rgba.size, CUTOUT_BACKGROUND + (255,))
         return np.asarray(Image.alpha_composite(base, rgba).convert("RGB"))
@@ -113,8 +111,11 @@ def _register_heif(path: Path) -> None:
     register_heif_opener()
 
 
-def _read_image(path: Path) -> np.ndarray:
-    from PIL import Image, UnidentifiedImageError
+def open_upright(path: Path, what: str = "an image"):
+    """The PIL image of ``path`` (loaded; an animation's first frame, a TIFF as stored) as it is meant
+    to be seen: turned by its EXIF orientation (a phone stores a portrait photo sideways and says so in
+    the tag). InputError naming the path when it cannot be read as ``what``."""
+    from PIL import Image, ImageOps, UnidentifiedImageError
 
     if path.suffix.lower() in HEIF_SUFFIXES:
         _register_heif(path)
@@ -123,10 +124,19 @@ def _read_image(path: Path) -> np.ndarray:
             im.load()
             if getattr(im, "n_frames", 1) > 1 and path.suffix.lower() not in (".tif", ".tiff"):
                 im.seek(0)
-            return _upright_rgb(im)
+                im.load()
+            try:
+                up = ImageOps.exif_transpose(im) or im
+            except Exception:  # noqa: BLE001 - a broken EXIF block: the pixels as stored, not a refused photo
+                up = im
+            return up if up is not im else im.copy()
     except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot be read as an image (expected {', '.join(IMAGE_SUFFIXES)}): "
+        raise InputError(f"{path}: cannot be read as {what} (expected {', '.join(IMAGE_SUFFIXES)}): "
                          f"{type(exc).__name__}: {exc}") from exc
+
+
+def _read_image(path: Path) -> np.ndarray:
+    return _as_rgb(open_upright(path))
 
 
 def _resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:

@@ -35,7 +35,7 @@ import numpy as np
 
 from .alpha_video import alpha_decoder, rgba_frames
 from .crop import Crop
-from .inputs import IMAGE_SUFFIXES, WIDE_MODES, InputError, _register_heif, input_kind, list_images
+from .inputs import WIDE_MODES, InputError, has_transparency, input_kind, list_images, open_upright, wide_to_rgb
 from .video import VideoError, display_rotation, read_video
 
 # what may follow a frame's name in its mask's name (frame_0001.jpg -> frame_0001_mask.png)
@@ -43,32 +43,8 @@ MASK_NAME_SUFFIXES = ("", "_mask", "-mask", ".mask", "_alpha", "-alpha", "_matte
 ASPECT_TOLERANCE = 0.01  # a mask of another resolution is taken when its aspect ratio is this close
 
 
-def has_transparency(im) -> bool:
-    """Whether a PIL image carries an alpha channel (or a transparent palette entry)."""
-    return im.mode in ("RGBA", "LA", "PA", "RGBa", "La") or (im.mode == "P" and "transparency" in im.info)
-
-
-def _open_upright(path: Path):
-    from PIL import Image, ImageOps, UnidentifiedImageError
-
-    if path.suffix.lower() in (".heic", ".heif"):
-        _register_heif(path)
-    try:
-        im = Image.open(path)
-        im.load()
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot be read as a mask image (expected {', '.join(IMAGE_SUFFIXES)}): "
-                         f"{type(exc).__name__}: {exc}") from exc
-    try:
-        im = ImageOps.exif_transpose(im) or im
-    except Exception:  # noqa: BLE001 - a broken EXIF block: the pixels as stored
-        pass
-    return im
-
-
-def image_alpha(path: Path) -> np.ndarray | None:
-    """(H,W) float32 in [0,1]: the image's alpha, or None when it has none or it is opaque everywhere."""
-    im = _open_upright(path)
+def _alpha(im) -> np.ndarray | None:
+    """(H,W) float32 in [0,1]: a PIL image's alpha, or None when it has none or it is opaque everywhere."""
     if not has_transparency(im):
         return None
     a = np.asarray(im.convert("RGBA"))[..., 3]
@@ -77,16 +53,20 @@ def image_alpha(path: Path) -> np.ndarray | None:
     return a.astype(np.float32) / 255.0
 
 
+def image_alpha(path: Path) -> np.ndarray | None:
+    """(H,W) float32 in [0,1]: the image's alpha, or None when it has none or it is opaque everywhere."""
+    return _alpha(open_upright(path, "an image"))
+
+
 def mask_from_image(path: Path) -> np.ndarray:
-    """(H,W) float32 in [0,1]: the alpha of an image with transparency, else its brightness."""
-    alpha = image_alpha(path)
+    """(H,W) float32 in [0,1]: the alpha of an image with transparency, else its brightness (greys
+    wider than 8 bits at their range, as ``prepare`` reads such photos)."""
+    im = open_upright(path, "a mask image")
+    alpha = _alpha(im)
     if alpha is not None:
         return alpha
-    im = _open_upright(path)
-    if im.mode in WIDE_MODES:  # 16-bit and float greys at their own range
-        a = np.asarray(im).astype(np.float64)
-        full = 65535.0 if im.mode.startswith("I;16") or a.max() > 255 else (1.0 if im.mode == "F" and a.max() <= 1 else 255.0)
-        return np.clip(a / full, 0.0, 1.0).astype(np.float32)
+    if im.mode in WIDE_MODES:
+        return wide_to_rgb(im)[..., 0].astype(np.float32) / 255.0
     return np.asarray(im.convert("L")).astype(np.float32) / 255.0
 
 
@@ -287,4 +267,4 @@ def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLi
     return None, "segmenter"
 
 
-__all__ = ["MASK_NAME_SUFFIXES", "has_transparency", "image_alpha", "mask_from_image", "read_user_masks", "scene_masks", "video_alpha"]
+__all__ = ["MASK_NAME_SUFFIXES", "image_alpha", "mask_from_image", "read_user_masks", "scene_masks", "video_alpha"]
