@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from reconstruct.data.prepare import InputError, prepare_video
+from reconstruct.data.prepare import InputError, alpha_video, prepare_video
 from reconstruct.data.prepare.crop import Crop, apply_crop
 from reconstruct.data.prepare.fit import FitConfig
 from reconstruct.data.prepare.masks import fill_holes
-from reconstruct.data.prepare.user_masks import image_alpha, mask_from_image, read_user_masks
+from reconstruct.data.prepare.user_masks import image_alpha, mask_from_image, read_user_masks, video_alpha
 from reconstruct.data.scene_io import read_scene
 from test_prepare_inputs import synth  # noqa: F401 - the module's synthetic scene fixture, shared
 from test_prepare_video import SyntheticSceneDetector
@@ -246,12 +246,36 @@ def test_a_cut_out_videos_alpha_is_the_mask_and_its_frames_are_laid_over_the_wal
     assert np.abs(inside[0] - [30, 90, 160]).max() <= 12  # lossy codecs: within a few levels
     assert np.abs(outside - np.array(CUTOUT_BACKGROUND)).max() <= 12  # the wall, not the red underneath
     m, src = read_user_masks(None, path, names=[f"f{i}" for i in (0, 2, 4)], indices=v.indices,
-                             source_size=v.source_size, every=2)
+                             source_size=v.source_size, every=2, alpha=v.alpha)
     assert src == "the input's transparency" and m.shape == (3, 48, 64)
     for k, t in enumerate((0, 2, 4)):
         assert ((m[k] > 0.5) == (rgba[t, ..., 3] > 127)).mean() > 0.99
     assert read_user_masks(None, path, names=["f0", "f2", "f4"], indices=v.indices, source_size=v.source_size,
-                           every=2, use_alpha=False) == (None, "segmenter")
+                           every=2, use_alpha=False, alpha=v.alpha) == (None, "segmenter")
+
+
+def test_a_cut_out_videos_alpha_is_read_with_its_frames_turned_cropped_and_resized_alike(tmp_path):
+    """``Video.alpha`` (decoded with the colour) against the alpha decoded on its own (``video_alpha``,
+    the --masks path) and against the frames it belongs to: a quarter turn, a crop and a resize."""
+    from reconstruct.data.prepare.alpha_video import alpha_decoder
+    from reconstruct.data.prepare.video import read_video
+
+    rgba = _cutout_clip()
+    path = _alpha_video(tmp_path / "cutout.mov", "qtrle", "argb", rgba)  # lossless
+    crop = lambda f: np.ascontiguousarray(f[10:50, 4:36])  # noqa: E731 - a crop of the turned (64,48) frame
+    v = read_video(path, max_size=None, every=2, turns=1, transform=crop)
+    turned = np.rot90(rgba[::2], 1, axes=(1, 2))
+    np.testing.assert_array_equal(v.alpha, turned[:, 10:50, 4:36, 3] / np.float32(255.0))
+    person = v.alpha > 0.5  # the wall where the alpha is 0: the crop took the same pixels from both
+    assert np.abs(v.frames[person].astype(int) - [30, 90, 160]).max() <= 1
+    alone = video_alpha(path, alpha_decoder(path), lambda m, where: crop(m), turns=1, every=2)
+    np.testing.assert_array_equal(v.alpha, alone)
+    small = read_video(path, max_size=32, max_frames=2)
+    assert small.alpha.shape == (2, 24, 32) == small.frames.shape[:3]
+    big = rgba[:2, ..., 3].astype(np.float32) / 255.0
+    np.testing.assert_allclose(small.alpha.mean((1, 2)), big.mean((1, 2)), atol=0.02)  # a resize keeps the cover
+    rgba[..., 3] = 255
+    assert read_video(_alpha_video(tmp_path / "opaque.mov", "qtrle", "argb", rgba)).alpha is None
 
 
 def test_a_video_without_alpha_or_with_opaque_alpha_goes_to_the_segmenter(tmp_path):
@@ -265,16 +289,26 @@ def test_a_video_without_alpha_or_with_opaque_alpha_goes_to_the_segmenter(tmp_pa
     rgba[..., 3] = 255
     opaque = _alpha_video(tmp_path / "opaque.mov", "qtrle", "argb", rgba)
     assert alpha_decoder(opaque) == "qtrle"
+    from reconstruct.data.prepare.video import read_video
+
+    assert read_video(tmp_path / "plain.mp4").alpha is None and read_video(opaque).alpha is None
     assert read_user_masks(None, opaque, names=["a", "b", "c"], indices=np.arange(3),
-                           source_size=(64, 48)) == (None, "segmenter")
+                           source_size=(64, 48), alpha=read_video(opaque).alpha) == (None, "segmenter")
 
 
-def test_prepare_takes_a_cut_out_videos_alpha(synth, tmp_path):
+def test_prepare_takes_a_cut_out_videos_alpha(synth, tmp_path, monkeypatch):
+    from reconstruct.data.prepare import user_masks as user_masks_module
+    from reconstruct.data.prepare import video as video_module
+
     rgba = np.stack([np.concatenate([_u8(f.image), _u8(_bitten(f.mask))[..., None]], -1) for f in synth.frames[:3]])
     path = _alpha_video(tmp_path / "cutout.mov", "qtrle", "argb", rgba)  # lossless: the mask exactly
+    decodes = []
+    for module in (video_module, user_masks_module):  # every reader of a cut-out's RGBA frames
+        monkeypatch.setattr(module, "rgba_frames", lambda *a, **k: decodes.append(a) or alpha_video.rgba_frames(*a, **k))
     _, report = prepare_video(path, tmp_path / "scene", detector=SyntheticSceneDetector(synth), fit_config=QUICK,
                               crop=False, log=lambda m: None)
     assert report["masks"]["source"] == "the input's transparency" and report["frames_used"] == 3
+    assert len(decodes) == 2  # the preview and the frames; the alpha comes with the frames, not a third time
     for k, f in enumerate(read_scene(tmp_path / "scene").frames):
         assert np.abs(f.mask - _bitten(synth.frames[k].mask)).max() < 1 / 255 + 1e-6
 

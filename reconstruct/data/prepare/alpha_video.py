@@ -5,7 +5,8 @@ ffmpeg's own VP8/VP9 decoders drop the alpha that WebM stores beside each frame 
 the stream), so those are decoded with libvpx, which keeps it; the other codecs decode it
 themselves (ProRes 4444: ``yuva444p12le``, QuickTime Animation: ``argb``, PNG: ``rgba``).
 ``rgba_frames`` yields the frames as RGBA; ``video.read_video`` lays them over the light wall a
-cut-out photo is shown on, and ``user_masks`` takes their alpha as the person mask.
+cut-out photo is shown on and keeps their alpha beside them (``Video.alpha``, decoded once with the
+colour), which ``user_masks`` takes as the person mask.
 """
 
 from __future__ import annotations

@@ -232,7 +232,7 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
     user, mask_source = read_user_masks(masks, video_path, names=names, indices=video.indices,
                                         source_size=video.source_size, turns=turns,
                                         transform=lambda m: apply_crop(m[None], cr)[0], every=every,
-                                        max_frames=max_frames, use_alpha=use_alpha, crop=cr)
+                                        max_frames=max_frames, use_alpha=use_alpha, crop=cr, alpha=video.alpha)
     if user is not None:
         log(f"person masks: {mask_source} (taken as they are; the segmenter's are not used)")
     det = detector.detect(frames)

@@ -113,24 +113,22 @@ def _fit_to_frame(mask: np.ndarray, size: tuple[int, int], where: str, frame_wha
     return np.asarray(Image.fromarray(mask, mode="F").resize((W, H), Image.Resampling.BILINEAR))
 
 
-def video_alpha(path: Path, decoder: str, place, *, turns: int = 0, every: int = 1, max_frames: int | None = None,
-                opaque: bool = False) -> np.ndarray | None:
-    """(T,H,W) float32: the alpha of a video's frames (every ``every``-th, at most ``max_frames``),
-    upright (display rotation) and turned ``turns`` as ``read_video`` turns its frames, each passed
-    through ``place`` (frame size check and crop); None when it is opaque everywhere, unless ``opaque``."""
+def video_alpha(path: Path, decoder: str, place, *, turns: int = 0, every: int = 1,
+                max_frames: int | None = None) -> np.ndarray:
+    """(T,H,W) float32: the alpha of a cut-out video given as the masks (every ``every``-th frame, at
+    most ``max_frames``), upright (display rotation) and turned ``turns`` as ``read_video`` turns its
+    frames, each passed through ``place`` (frame size check and crop). An input video's own alpha is
+    read with its frames instead (``Video.alpha``)."""
     quarter = (display_rotation(path) + turns) % 4
-    alphas, all_opaque = [], True
+    alphas = []
     for i, rgba in enumerate(rgba_frames(path, decoder)):
         if i % every:
             continue
-        a = rgba[..., 3]
-        all_opaque = all_opaque and bool(a.min() == 255)
-        alphas.append(place(np.ascontiguousarray(np.rot90(a, quarter)).astype(np.float32) / 255.0, f"{path} frame {i}"))
+        alphas.append(place(np.ascontiguousarray(np.rot90(rgba[..., 3], quarter)).astype(np.float32) / 255.0,
+                            f"{path} frame {i}"))
         if max_frames and len(alphas) >= max_frames:
             break
-    if not alphas or (all_opaque and not opaque):
-        return None
-    return np.stack(alphas)
+    return np.stack(alphas) if alphas else np.zeros((0, 1, 1), np.float32)
 
 
 def is_prepared_scene(path: Path) -> bool:
@@ -186,12 +184,13 @@ def scene_masks(scene: Path, input_path: Path, *, indices: np.ndarray, source_si
 def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLike, *, names: list[str],
                     indices: np.ndarray, source_size: tuple[int, int], turns: int = 0, transform=None,
                     every: int = 1, max_frames: int | None = None, use_alpha: bool = True,
-                    crop: Crop | None = None) -> tuple[np.ndarray | None, str]:
+                    crop: Crop | None = None, alpha: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
     """(masks (T,H,W) float32 in [0,1] of the frames used, or None; where they came from: the masks
     path, "the input's transparency" or "segmenter"). ``names``/``indices``: the frames ``read_input``
     gave (indices into the file's frames or the folder's images); ``source_size`` (W,H): their size
     after the orientation and ``turns``; ``transform``: the crop applied to the frames, applied alike
-    to each (H,W) mask; ``crop``: that crop, where a scene folder's masks may be taken as they are."""
+    to each (H,W) mask; ``crop``: that crop, where a scene folder's masks may be taken as they are;
+    ``alpha``: a video input's own alpha, read with its frames (``Video.alpha``: transformed alike)."""
     input_path = Path(input_path)
     kind = input_kind(input_path)
     indices = np.asarray(indices)
@@ -217,7 +216,7 @@ def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLi
         mkind = input_kind(path)
         decoder = alpha_decoder(path) if mkind == "video" else None
         if decoder is not None:  # a cut-out video given as the masks: its alpha, as a mask image's
-            out = video_alpha(path, decoder, place, turns=turns, every=every, max_frames=max_frames, opaque=True)
+            out = video_alpha(path, decoder, place, turns=turns, every=every, max_frames=max_frames)
             if len(out) != T:
                 raise InputError(f"{path}: gives {len(out)} mask frames, {input_path.name} gives {T}; "
                                  f"expected one mask frame per frame")
@@ -246,15 +245,12 @@ def read_user_masks(masks: str | os.PathLike | None, input_path: str | os.PathLi
             files = _matched_files(path, input_path, kind, names, indices)
         return np.stack([finish(mask_from_image(f), str(f)) for f in files]), str(path)
     if use_alpha and kind == "video":
-        decoder = alpha_decoder(input_path)
-        alphas = None if decoder is None else video_alpha(input_path, decoder, place, turns=turns, every=every,
-                                                          max_frames=max_frames)
-        if alphas is None:
+        if alpha is None:
             return None, "segmenter"
-        if len(alphas) != T:
-            raise InputError(f"{input_path}: gave {len(alphas)} alpha frames and {T} colour frames; expected one "
+        if len(alpha) != T:
+            raise InputError(f"{input_path}: gave {len(alpha)} alpha frames and {T} colour frames; expected one "
                              f"alpha per frame")
-        return alphas, "the input's transparency"
+        return np.clip(alpha, 0.0, 1.0).astype(np.float32), "the input's transparency"
     if use_alpha:
         files = [input_path] if kind == "image" else [input_path / n for n in names]
         alphas = []

@@ -24,12 +24,21 @@ class Video:
     fps: float
     source_size: tuple[int, int]  # (width, height) as shown: a rotated video's turned (``display_rotation``)
     indices: np.ndarray  # (T,) frame numbers in the file
+    # (T,H,W) float32 in [0,1]: a cut-out video's alpha beside its frames (turned, transformed or resized
+    # as they are); None when the frames carry no alpha or it is opaque everywhere
+    alpha: np.ndarray | None = None
 
 
 def _resize(frame: np.ndarray, width: int, height: int) -> np.ndarray:
     from PIL import Image
 
     return np.asarray(Image.fromarray(frame).resize((width, height), Image.Resampling.LANCZOS))
+
+
+def _resize_alpha(alpha: np.ndarray, width: int, height: int) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(alpha, mode="F").resize((width, height), Image.Resampling.BILINEAR))
 
 
 def working_size(width: int, height: int, max_size: int | None) -> tuple[int, int]:
@@ -66,7 +75,9 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
     """Frames of ``path`` (every ``every``-th, at most ``max_frames``), upright (``display_rotation``),
     then turned ``turns`` quarter turns counter-clockwise more, longer side at most ``max_size``;
     ``transform`` (frame at the file's size -> frame) replaces the resize and runs as each frame is decoded
-    (a crop: only the cropped frames are held in memory).
+    (a crop: only the cropped frames are held in memory). A cut-out video's frames (``alpha_video``)
+    are laid over the light wall and their alpha is kept beside them (``Video.alpha``: turned and
+    transformed or resized alike, decoded once with the colour).
     Raises FileNotFoundError for a missing file and VideoError for one that is not a decodable video."""
     path = Path(path)
     if not path.exists():
@@ -78,7 +89,8 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
     import imageio.v3 as iio
 
     expected = f"expected a video file that ffmpeg can decode ({', '.join(VIDEO_SUFFIXES)})"
-    frames, indices = [], []
+    frames, indices, alphas = [], [], []
+    opaque = True
     fps = 0.0
     turns = (display_rotation(path) + turns) % 4
     decoder = alpha_decoder(path)
@@ -87,10 +99,16 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
         fps = float(meta.get("fps") or 0.0)
         # a cut-out video (frames with alpha) is laid over the light wall, as a cut-out photo is
         decoded = (iio.imiter(path, plugin="pyav", format="rgb24") if decoder is None
-                   else (over_wall(f) for f in rgba_frames(path, decoder)))
+                   else rgba_frames(path, decoder))
         for i, frame in enumerate(decoded):
             if i % every:
                 continue
+            if decoder is not None:
+                a = frame[..., 3]
+                opaque = opaque and bool(a.min() == 255)
+                a = np.ascontiguousarray(np.rot90(a, turns)).astype(np.float32) / 255.0
+                alphas.append(a if transform is None else np.clip(transform(a), 0.0, 1.0).astype(np.float32))
+                frame = over_wall(frame)
             if turns:
                 frame = np.ascontiguousarray(np.rot90(frame, turns))
             if not frames:
@@ -107,6 +125,8 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
     ww, wh = working_size(w, h, max_size)
     if transform is None and (ww, wh) != (w, h):
         frames = [_resize(f, ww, wh) for f in frames]
+        alphas = [np.clip(_resize_alpha(a, ww, wh), 0.0, 1.0) for a in alphas]
     if not np.isfinite(fps) or fps <= 0:
         fps = 25.0
-    return Video(np.stack(frames).astype(np.uint8), fps / every, (w, h), np.asarray(indices))
+    alpha = None if not alphas or opaque else np.stack(alphas).astype(np.float32)
+    return Video(np.stack(frames).astype(np.uint8), fps / every, (w, h), np.asarray(indices), alpha)
