@@ -156,3 +156,12 @@ def test_bad_model_file_is_named(tmp_path, arrays):
         B.load_model_arrays(tmp_path / "SMPL_NEUTRAL.npz")
     with pytest.raises(ValueError, match="expected 72 values"):
         B.smpl_body_pose(np.zeros(69))
+
+
+def test_pose_refinement_leaves_smpls_hands_and_toes_and_turns_the_rest():
+    from reconstruct.body.parts import refinable_bone
+    from reconstruct.body.smpl_backend import BONE_LABELS
+
+    fixed = [b for b in BONE_LABELS if not refinable_bone(b)]
+    assert sorted(fixed) == ["finger.L", "finger.R", "toe.L", "toe.R"]
+    assert refinable_bone("upperarm01.L") and refinable_bone("head") and not refinable_bone("eye.R")

@@ -25,6 +25,7 @@ import torch
 from ..appearance.propagation import erode_by_part
 from ..body.base import BodyModel
 from ..body.lbs import apply_normals
+from ..body.parts import refinable_bone
 from ..body.pose import BodyPose
 from ..edits.edit_list import EditList
 from ..snapshot import Snapshot
@@ -49,6 +50,10 @@ class AvatarState:
         self.refine_poses = refine_poses
         J = body.num_joints
         self.pose_delta = torch.nn.Parameter(torch.zeros(len(self.poses), J + 2, 3, dtype=torch.float64))
+        # which rows of a correction count (the bones refinement may turn, then the global rotation
+        # and translation): a small bone's row gets no gradient and stays zero
+        self.refinable = torch.tensor([refinable_bone(b) for b in body.bone_labels] + [True, True],
+                                      dtype=torch.float64)[:, None]
         self.seen = torch.zeros(model.num_gaussians, dtype=torch.bool)
         self._trusted_seen: torch.Tensor | None = None  # Stage II's flags as computed (unpainted)
         # the seen Gaussians whose colours the fills may carry to the unseen ones (Stage I's finish:
@@ -85,7 +90,7 @@ class AvatarState:
         """Bone transforms of video frame ``i``: with its pose correction when poses are refined
         (differentiable in ``pose_delta``), else the fitted pose's (cached)."""
         if refined and self.refine_poses:
-            p, d = self.poses[i], self.pose_delta[i]
+            p, d = self.poses[i], self.pose_delta[i] * self.refinable
             f64 = dict(dtype=torch.float64)
             T = self.body.bone_transforms_t(torch.as_tensor(p.joint_rotations, **f64) + d[:-2],
                                             torch.as_tensor(p.global_orient, **f64) + d[-2],
@@ -97,7 +102,7 @@ class AvatarState:
 
     def refined_pose(self, i: int) -> BodyPose:
         p = self.poses[i]
-        d = self.pose_delta[i].detach().numpy()
+        d = (self.pose_delta[i].detach() * self.refinable).numpy()
         return BodyPose(p.joint_rotations + d[:-2], p.global_orient + d[-2], p.transl + d[-1])
 
     def articulation_of_pose(self, pose: BodyPose) -> torch.Tensor:

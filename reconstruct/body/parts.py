@@ -36,3 +36,17 @@ def part_of_bone(label: str) -> str:
     if base.startswith(("head", "eye", "jaw", "tongue")):
         return "head"
     return "torso"  # root, spine, clavicle, pelvis
+
+
+# bones too small for an image to pin: fingers, toes, the eyes, the jaw. A per-frame pose correction
+# left free on them spins them (on four photos: an eye by 135-160 degrees, toes by 40-90) where a
+# few pixels move, and the avatar then wears that twist in every other pose
+SMALL_BONE_PREFIXES = ("toe", "finger", "metacarpal", "thumb", "index", "middle", "ring", "pinky", "eye", "jaw",
+                       "tongue")
+
+
+def refinable_bone(label: str) -> bool:
+    """Whether per-frame pose refinement may turn this bone (Anny/MakeHuman or SMPL labels): the
+    skeleton's limbs, spine, neck and head, not ``SMALL_BONE_PREFIXES``."""
+    base = label[:-2] if label[-2:] in (".L", ".R") else label
+    return not base.lower().startswith(SMALL_BONE_PREFIXES)
