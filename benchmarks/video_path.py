@@ -10,6 +10,7 @@ garment layer Stage I built, and the held-out frames' PSNR / SSIM at the end of 
 
     python benchmarks/video_path.py OUT "synthetic:seed=1,clothing=skirt" [SPEC ...]
         [--iters 700] [--threads 1] [--detector-python .venv-video/bin/python]
+        [--pose-refinement] [--set KEY=VALUE ...]
 
 Each scene takes ~15 min on one core (prepare 3-4 min for 60 frames, 700 steps ~11 min). OUT/NAME.mp4,
 OUT/NAME_scene and OUT/NAME_run are kept; a scene whose run exists is only measured again.
@@ -68,6 +69,31 @@ def fit_against_truth(truth, folder: Path) -> dict[str, float]:
     return {"joint_error_m": float(err.mean()), "body_iou": float(np.mean(ious)), "outside_body": float(np.mean(outside))}
 
 
+def refined_against_truth(truth, folder: Path, run: Path) -> tuple[float, float] | None:
+    """Mean joint errors (m, as ``fit_against_truth``) on the run's training frames of its refined
+    poses (the fitted poses plus the corrections Stage I learned, as ``AvatarState.refined_pose``)
+    and of the fitted ones; None when the run refined nothing."""
+    from reconstruct.body.pose import BodyPose
+    from reconstruct.train.checkpoint import load_checkpoint
+
+    delta = load_checkpoint(run / "checkpoint_stage1.pt" if (run / "checkpoint_stage1.pt").is_file()
+                            else run / "checkpoint.pt")["avatar"]["pose_delta"].numpy()
+    if not np.abs(delta).any():
+        return None
+    fitted = read_scene(folder)
+    by_index = {f.index: f for f in truth.frames}
+    # the frames trained on (a held-out frame's correction stays zero)
+    frames = [(k, f) for k, f in enumerate(fitted.frames) if np.abs(delta[k]).any()]
+    poses = [BodyPose(f.pose.joint_rotations + delta[k][:-2], f.pose.global_orient + delta[k][-2],
+                      f.pose.transl + delta[k][-1]) for k, f in frames]
+    err = joint_errors(fitted.body_model(), poses, fitted.frames[0].camera, truth.body_model(),
+                       [by_index[f.index].pose for _, f in frames], by_index[frames[0][1].index].camera)
+    before = joint_errors(fitted.body_model(), [f.pose for _, f in frames], fitted.frames[0].camera,
+                          truth.body_model(), [by_index[f.index].pose for _, f in frames],
+                          by_index[frames[0][1].index].camera)
+    return float(err.mean()), float(before.mean())
+
+
 def held_out(run: Path) -> tuple[float, float]:
     """(PSNR, SSIM) on the held-out frames at the run's last evaluation."""
     evals = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines() if '"eval"' in line]
@@ -89,6 +115,9 @@ def main() -> int:
     ap.add_argument("--iters", type=int, default=700)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--detector-python", default=str(ROOT / ".venv-video" / "bin" / "python"))
+    ap.add_argument("--pose-refinement", action="store_true", help="passed to train")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="passed to train (e.g. lr_pose=3e-4)")
     args = ap.parse_args()
     args.out = args.out.resolve()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -106,18 +135,23 @@ def main() -> int:
                 subprocess.run(cli + ["prepare", "--detector-python", args.detector_python, str(video), "--out", str(scene)],
                                cwd=ROOT, check=True)
             with open(log_path, "w") as log:
+                extra = (["--pose-refinement"] if args.pose_refinement else []) + [
+                    a for kv in args.set for a in ("--set", kv)]
                 subprocess.run(cli + ["train", "--scene", str(scene), "--out", str(run), "--stage", "1",
-                                      "--iters", str(args.iters), "--threads", str(args.threads)],
+                                      "--iters", str(args.iters), "--threads", str(args.threads), *extra],
                                cwd=ROOT, check=True, stderr=log, stdout=log)
         report = json.loads((scene / "prepare_report.json").read_text())
         psnr, ssim = held_out(run)
         rows.append((spec, report["mean_keypoint_px_error"], report["mean_silhouette_iou"], fit_against_truth(truth, scene),
+                     refined_against_truth(truth, scene, run),
                      layer_line(log_path.read_text(errors="replace") if log_path.is_file() else ""), psnr, ssim))
-    print("| scene | keypoint error, fitted IoU vs mask | joint error, IoU vs true body, outside it | layer | held-out PSNR, SSIM |")
-    print("|---|---|---|---|---|")
-    for spec, kp, iou, t, layer, psnr, ssim in rows:
+    print("| scene | keypoint error, fitted IoU vs mask | joint error, IoU vs true body, outside it "
+          "| refined poses' joint error (training frames: refined / fitted) | layer | held-out PSNR, SSIM |")
+    print("|---|---|---|---|---|---|")
+    for spec, kp, iou, t, refined, layer, psnr, ssim in rows:
+        ref = "not refined" if refined is None else f"{100 * refined[0]:.2f} / {100 * refined[1]:.2f} cm"
         print(f"| {spec} | {kp:.2f} px, {iou:.3f} | {100 * t['joint_error_m']:.2f} cm, {t['body_iou']:.3f}, "
-              f"{100 * t['outside_body']:.1f} % | {layer} | {psnr:.2f} dB, {ssim:.3f} |")
+              f"{100 * t['outside_body']:.1f} % | {ref} | {layer} | {psnr:.2f} dB, {ssim:.3f} |")
     return 0
 
 

@@ -192,6 +192,13 @@ def test_pose_refinement_moves_the_poses(tiny_scene, tiny_config):
     assert s.state.pose_delta.detach().abs().max() > 0
     refined = s.state.refined_pose(0)
     assert refined.joint_rotations.shape == tiny_scene.frames[0].pose.joint_rotations.shape
+    # the limbs move; fingers, toes and the eyes (a few pixels each) keep the fitted pose
+    labels = s.state.body.bone_labels
+    small = np.array([any(k in b for k in ("finger", "toe", "eye")) for b in labels])
+    assert small.sum() > 20 and not s.state.refinable[:-2, 0].numpy()[small].any()
+    moved = np.abs(refined.joint_rotations - tiny_scene.frames[0].pose.joint_rotations).max(1)
+    assert moved[~small].max() > 0 and moved[small].max() == 0
+    assert s.state.pose_delta.detach()[:, :-2][:, torch.from_numpy(small)].abs().max() == 0  # no gradient there
     # the refined transforms are the body model's for the refined pose
     T = s.state.body.bone_transforms(refined).float()
     assert torch.allclose(s.state.frame_transforms(0), T, atol=1e-5)
