@@ -70,7 +70,8 @@ def _one_hot_sums(t, ids: list[int]) -> tuple[torch.Tensor, torch.Tensor, torch.
 
 def _outside(t, ids: list[int]) -> torch.Tensor:
     """(frames, len(ids)) bool: the frame's camera sees the Gaussian's surface (its body or layer
-    normal, posed; not the learned one) from outside, in float64."""
+    normal, posed; not the learned one) from outside, in float64. Not counted for the body: the
+    rule applies it to the garment layer only."""
     outside = torch.zeros(len(t.data.frames), len(ids), dtype=torch.bool)
     m = t.model
     for f, i in enumerate(t.data.frames):
@@ -80,6 +81,13 @@ def _outside(t, ids: list[int]) -> torch.Tensor:
             v = torch.as_tensor(t.data.targets[i].camera.center, dtype=torch.float64) - t.state.posed(i).means.double()
         outside[f] = (v * nrm).sum(1)[ids] >= 0
     return outside
+
+
+def _counted(t, ids: list[int]) -> torch.Tensor:
+    """``_outside``, with every frame counted for the body's Gaussians."""
+    out = _outside(t, ids)
+    out[:, torch.as_tensor(ids) < t.model.num_body] = True
+    return out
 
 
 W = 0.02  # pixels of blend weight in the tiny scene's 64-px frames
@@ -98,12 +106,13 @@ def test_blend_weights_match_one_hot_renders(tiny_scene):
     assert len(t.data.frames) > 1
     close = lambda a, b: torch.allclose(a, b, rtol=1e-4, atol=1e-5)  # noqa: E731
     assert close(cov.weight[ids], person.sum(0)) and close(cov.total[ids], total.sum(0))
-    # the rule's weight: one frame's, on the person's pixels INSET px inside the silhouette, in the
-    # frames that see the Gaussian's surface (its body or layer normal, posed) from outside
+    # the rule's weight: one frame's, on the person's pixels INSET px inside the silhouette; the
+    # body's count in every frame, also those whose camera its posed normal turns from
+    assert t.model.layer is None
     outside = _outside(t, ids)
-    assert close(cov.weight_max[ids], (inner * outside).max(0).values)
-    assert close(cov.total_max[ids], (total * outside).max(0).values)
-    assert bool((inner * ~outside).max() > 1e-3)  # some weight comes from within
+    assert close(cov.weight_max[ids], inner.max(0).values)
+    assert close(cov.total_max[ids], total.max(0).values)
+    assert bool((inner * ~outside).max() > 1e-3)  # some of it comes from frames it faces away from
     assert bool((inner.max(0).values < person.max(0).values - 1e-3).any())  # the band matters for some
     # the first hits are those of the recount without weights
     assert torch.equal(cov.first_hits, person_coverage(t.state, t.data).first_hits)
@@ -200,6 +209,38 @@ def test_layer_reached_is_weight_over_opacity(tiny_scene, tiny_config):
     assert torch.allclose(reach[ids], torch.tensor(ref, dtype=torch.float64), rtol=0.05)
     reached = layer_reached(t.state, cov.total_max, W)
     assert torch.equal(reached, reach >= W) and reached.any() and not reached.all()
+
+
+def test_the_layer_counts_only_frames_that_see_it_from_outside(tiny_scene, tiny_config, monkeypatch):
+    """A garment layer is an open sheet: a frame that sees its surface from inside adds nothing to
+    its Gaussians' one-frame weights. The body is closed, and its Gaussians count in every frame.
+    Turned inside out (the surface normals the rule reads flipped, the renders the same), the
+    layer's one-frame weights come from the other frames and the body's stay as they were."""
+    from test_garment_layer_avatar import _layer, _trainer
+
+    t = _trainer(tiny_scene, tiny_config, _layer(tiny_scene.body_model()))
+    for _ in range(3):
+        t.step()
+    m = t.model
+    N = m.num_body
+    with torch.no_grad():  # a see-through layer, so that the body blends in behind it too
+        m.layer_opacity.copy_(torch.logit(torch.full_like(m.layer_opacity, 0.3)) / m.config.garment_opacity_gain)
+    cov = person_coverage(t.state, t.data, weights=True)
+    assert float(cov.weight_max[N:].max()) > 0.05 and float(cov.weight_max[:N].max()) > 0.05
+    read = t.state.posed_with_surface_normals
+
+    def inside_out(frame, *, surface=True):  # the same render; the surface normals the rule reads, flipped
+        posed, normals = read(frame, surface=surface)
+        return posed, None if normals is None else -normals
+
+    monkeypatch.setattr(t.state, "posed_with_surface_normals", inside_out)
+    flipped = person_coverage(t.state, t.data, weights=True)
+    assert torch.allclose(flipped.weight, cov.weight) and torch.allclose(flipped.total, cov.total)
+    for before, after in ((cov.weight_max, flipped.weight_max), (cov.total_max, flipped.total_max)):
+        # inside out, the layer leaves out the frames it counted (the front seen from outside)
+        assert bool(((before[N:] > 0.05) & (after[N:] < 1e-3)).any())
+    assert torch.allclose(flipped.weight_max[:N], cov.weight_max[:N])
+    assert torch.allclose(flipped.total_max[:N], cov.total_max[:N])
 
 
 def test_setting_defaults_old_records_and_bad_values():

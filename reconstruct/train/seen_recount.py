@@ -24,11 +24,11 @@ draw at least a quarter pixel of it; the photo's PSNR inside the mask fell 25.9 
 the fill). With ``min_weight`` the recount also marks seen every Gaussian that blends at least
 ``min_weight`` pixels' worth of weight into the person's pixels of ONE training frame, with at
 least ``MIN_PERSON_SHARE`` of all its weight (over the frames) on the person, not off the
-silhouette, in a frame that sees its surface from outside. One frame, not the sum over frames, and
-only the person's pixels ``INSET`` px or more inside the silhouette: in a 60-frame video, 6,378 Gaussians that are no first
-hit blend 1.3 px over the frames (median) but 0.05 px in their best frame, nearly all at grazing
-incidence at the silhouette; their colours are fitted to the edge's blend, the fill's are better,
-and keeping them cost the tight benchmark 2 dB unseen (seed 0: 29.25 -> 27.26 dB with a 0.05 px
+silhouette, in a frame that sees its surface from outside (a garment layer's, below). One frame,
+not the sum over frames, and only the person's pixels ``INSET`` px or more inside the silhouette:
+in a 60-frame video, 6,378 Gaussians that are no first hit blend 1.3 px over the frames (median)
+but 0.05 px in their best frame, nearly all at grazing incidence at the silhouette; their colours
+are fitted to the edge's blend, the fill's are better, and keeping them cost the tight benchmark 2 dB unseen (seed 0: 29.25 -> 27.26 dB with a 0.05 px
 sum over the frames). Nor does the body's own normal tell them apart: on the coat photo a quarter
 of the Gaussians that draw its inside do not face the camera by it (the body's sides, pulled out
 to the coat's), and a facing test on it kept the photo at 22.6 dB.
@@ -36,11 +36,16 @@ to the coat's), and a facing test on it kept the photo at 22.6 dB.
 The Gaussians seen by their weight alone keep their colour through the fill but are no colour
 source of it (``SeenRecount.blended_only``): many sit at the silhouette at grazing incidence, where
 a photo's matting leaves a light fringe, and as sources they streaked the back of that coat with
-white. A frame counts for a Gaussian only where it sees the Gaussian's surface from outside (the
-posed body or layer normal, not the learned one, faces the camera): through a coat's front opening
-the camera sees the inside of the layer's back panel, whose trained colours are the inside's. There
-is no facing test on the learned normals: without normal maps to fit, many of them turn away from
-the camera (the coat photo: 41 % of the Gaussians that draw it).
+white. On a garment layer, a frame counts for a Gaussian only where it sees the layer's surface
+from outside (the posed layer normal, not the learned one, faces the camera): through a coat's
+front opening the camera sees the inside of the layer's back panel, whose trained colours are the
+inside's. The body is a closed surface and gets no such test: a body Gaussian whose normal turns
+from the camera and still blends into the person lies behind semi-transparent ones at the
+silhouette's edge (the side of a neck behind loose hair), and with the test the fill repainted it
+in the training view too (the grey-skirt photo, 500 steps: 22.64 dB inside the mask after the
+finish with the test, 22.92 without it; `docs/loose_clothing.md`, "A photo's own view after the
+finish"). There is no facing test on the learned normals: without normal maps to fit, many of them
+turn away from the camera (the coat photo: 41 % of the Gaussians that draw it).
 
 The weights are the gradient of the image with respect to a zero colour probe:
 d(sum of pixels)/d(colour) is the sum of alpha times transmittance over the pixels a Gaussian
@@ -74,8 +79,9 @@ class PersonCoverage:
     total: torch.Tensor | None = None  # (N,) float64: blend weight on every pixel, summed over the frames
     weight_max: torch.Tensor | None = None  # (N,) float64: the largest one frame's blend weight on the
     # person's pixels at least INSET px inside the silhouette, in frames that see its surface from outside
+    # (a garment layer's; the body's count in every frame)
     total_max: torch.Tensor | None = None  # (N,) float64: the largest one frame's blend weight on every pixel,
-    # in frames that see its surface from outside
+    # in frames that see its surface from outside (every frame for the body's Gaussians)
 
 
 class SeenRecount(NamedTuple):
@@ -110,6 +116,7 @@ def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: fl
             total += g[:, 1]
             centre = torch.as_tensor(tgt.camera.center, dtype=posed.means.dtype, device=posed.means.device)
             outside = ((centre - posed.means) * surface_normals).sum(1).cpu() >= 0  # not seen from within
+            outside[:state.model.num_body] = True  # the body is closed: no view sees it from within
             torch.maximum(weight_max, g[:, 2] * outside, out=weight_max)
             torch.maximum(total_max, g[:, 1] * outside, out=total_max)
         else:
