@@ -70,8 +70,8 @@ def _one_hot_sums(t, ids: list[int]) -> tuple[torch.Tensor, torch.Tensor, torch.
 
 def _outside(t, ids: list[int]) -> torch.Tensor:
     """(frames, len(ids)) bool: the frame's camera sees the Gaussian's surface (its body or layer
-    normal, posed; not the learned one) from outside, in float64. Not counted for the body: the
-    rule applies it to the garment layer only."""
+    normal, posed; not the learned one) from outside, in float64. The rule applies it to the
+    garment layer only."""
     outside = torch.zeros(len(t.data.frames), len(ids), dtype=torch.bool)
     m = t.model
     for f, i in enumerate(t.data.frames):
@@ -81,13 +81,6 @@ def _outside(t, ids: list[int]) -> torch.Tensor:
             v = torch.as_tensor(t.data.targets[i].camera.center, dtype=torch.float64) - t.state.posed(i).means.double()
         outside[f] = (v * nrm).sum(1)[ids] >= 0
     return outside
-
-
-def _counted(t, ids: list[int]) -> torch.Tensor:
-    """``_outside``, with every frame counted for the body's Gaussians."""
-    out = _outside(t, ids)
-    out[:, torch.as_tensor(ids) < t.model.num_body] = True
-    return out
 
 
 W = 0.02  # pixels of blend weight in the tiny scene's 64-px frames
