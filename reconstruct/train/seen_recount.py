@@ -28,8 +28,8 @@ silhouette, in a frame that sees its surface from outside (a garment layer's, be
 not the sum over frames, and only the person's pixels ``INSET`` px or more inside the silhouette:
 in a 60-frame video, 6,378 Gaussians that are no first hit blend 1.3 px over the frames (median)
 but 0.05 px in their best frame, nearly all at grazing incidence at the silhouette; their colours
-are fitted to the edge's blend, the fill's are better, and keeping them cost the tight benchmark 2 dB unseen (seed 0: 29.25 -> 27.26 dB with a 0.05 px
-sum over the frames). Nor does the body's own normal tell them apart: on the coat photo a quarter
+are fitted to the edge's blend, the fill's are better, and keeping them cost the tight benchmark
+2 dB unseen (seed 0: 29.25 -> 27.26 dB with a 0.05 px sum over the frames). Nor does the body's own normal tell them apart: on the coat photo a quarter
 of the Gaussians that draw its inside do not face the camera by it (the body's sides, pulled out
 to the coat's), and a facing test on it kept the photo at 22.6 dB.
 
@@ -98,10 +98,13 @@ def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: fl
     counts = torch.zeros(n, dtype=torch.long)
     zeros = (lambda: torch.zeros(n, dtype=torch.float64)) if weights else (lambda: None)
     weight, total, weight_max, total_max = zeros(), zeros(), zeros(), zeros()
+    nb = state.model.num_body  # the body is closed: no view sees it from within; only a layer's
+    # Gaussians (after the body's) need their surface normals, for the test below
+    layer = weights and n > nb
     for i in data.frames:
         tgt = data.targets[i]
         with torch.no_grad():
-            posed, surface_normals = state.posed_with_surface_normals(i) if weights else (state.posed(i), None)
+            posed, surface_normals = state.posed_with_surface_normals(i, surface=layer)
         person = tgt.mask > PERSON
         if weights:  # colours as a leaf: red carries the person-masked sum, green the whole image's,
             # blue the sum inside the silhouette's band
@@ -114,9 +117,10 @@ def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: fl
             g = probe.grad.detach().cpu().double()
             weight += g[:, 0]
             total += g[:, 1]
-            centre = torch.as_tensor(tgt.camera.center, dtype=posed.means.dtype, device=posed.means.device)
-            outside = ((centre - posed.means) * surface_normals).sum(1).cpu() >= 0  # not seen from within
-            outside[:state.model.num_body] = True  # the body is closed: no view sees it from within
+            outside = torch.ones(n, dtype=torch.bool)
+            if layer:  # a layer Gaussian counts where its surface is not seen from within
+                centre = torch.as_tensor(tgt.camera.center, dtype=posed.means.dtype, device=posed.means.device)
+                outside[nb:] = ((centre - posed.means[nb:]) * surface_normals[nb:]).sum(1).cpu() >= 0
             torch.maximum(weight_max, g[:, 2] * outside, out=weight_max)
             torch.maximum(total_max, g[:, 1] * outside, out=total_max)
         else:
