@@ -4,6 +4,7 @@ the emblem), checks that vary left-right (the back continues them with their pha
 with a face in front and hair at the sides (the back gets hair, not skin)."""
 
 import numpy as np
+import pytest
 from scipy.spatial import cKDTree
 import torch
 
@@ -413,8 +414,6 @@ def test_grazing_seen_gaussians_are_repainted_except_on_the_head():
 
 
 def test_stage2_config_propagation_choices():
-    import pytest
-
     from reconstruct.stage2.config import Stage2Config
 
     assert Stage2Config().propagation == "wrap"
@@ -696,6 +695,39 @@ def test_a_few_seen_gaussians_just_behind_the_centre_leave_a_part_front_only():
     np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen_all, col, nb).numpy(),
                                   wrap_fill_colors(pos, parts, seen_all, col, nb,
                                                    WrapFillConfig(front_only_median=0)).numpy())
+
+
+def test_a_front_seen_behind_the_centre_plane_is_no_view_of_the_back():
+    # the shaded torso seen to 80 degrees, its top 12 rows set back by 16 cm (the shoulders and the
+    # upper chest of a torso whose belly lies in front): their seen Gaussians still face the
+    # front, but 228 lie behind the part's mean depth, 10 % of those behind it. By position
+    # alone that is a view of the back, and the back is filled unsmoothed; given the surface
+    # normals (+Y is the back) they are no view of it, and the part is front-only
+    pos, col, parts, nb, deg = _shaded_torso()
+    th = np.radians(deg) * np.sign(pos[:, 0])
+    normals = np.c_[np.sin(th), -np.cos(th), np.zeros(len(pos))]
+    top = np.arange(len(pos)) >= 48 * 72
+    pos = pos + np.c_[np.zeros(len(pos)), 0.16 * top, np.zeros(len(pos))]
+    seen = deg <= 80
+    centre_y = pos[:, 1].mean()
+    assert ((pos[:, 1] > centre_y) & seen).sum() == 228 and not ((normals[:, 1] > 0) & seen).any()
+    back = deg > 150
+    rough = lambda c: np.abs(np.diff(c[back].reshape(60, -1).mean(1))).mean()  # noqa: E731
+    out = wrap_fill_colors(pos, parts, seen, col, nb, surface_normals=normals).numpy()
+    by_position = wrap_fill_colors(pos, parts, seen, col, nb).numpy()
+    unsmoothed = wrap_fill_colors(pos, parts, seen, col, nb, WrapFillConfig(front_only_median=0),
+                                  surface_normals=normals).numpy()
+    np.testing.assert_array_equal(by_position, wrap_fill_colors(pos, parts, seen, col, nb,
+                                                                WrapFillConfig(front_only_median=0)).numpy())
+    assert rough(out) < 0.5 * rough(unsmoothed)
+    with pytest.raises(ValueError, match="surface_normals must have shape"):
+        wrap_fill_colors(pos, parts, seen, col, nb, surface_normals=normals[:-1])
+    # the back seen (to 120 degrees, facing back there) counts with the normals too
+    seen_all = deg <= 120
+    np.testing.assert_array_equal(
+        wrap_fill_colors(pos, parts, seen_all, col, nb, surface_normals=normals).numpy(),
+        wrap_fill_colors(pos, parts, seen_all, col, nb, WrapFillConfig(front_only_median=0),
+                         surface_normals=normals).numpy())
 
 
 def test_seen_behind_is_counted_on_what_a_garment_layer_leaves_visible():

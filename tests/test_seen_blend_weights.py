@@ -12,8 +12,8 @@ from scipy.ndimage import binary_erosion
 from reconstruct.avatar.config import AvatarConfig
 from reconstruct.train.config import Stage1Config
 from reconstruct.train.render import render_avatar
-from reconstruct.train.seen_recount import (INSET, MIN_PERSON_SHARE, PERSON, blended_on_person, keep_seen_on_person,
-                                            person_coverage)
+from reconstruct.train.seen_recount import (BODY_AWAY_COS, INSET, MIN_PERSON_SHARE, PERSON, blended_on_person,
+                                            keep_seen_on_person, person_coverage)
 from reconstruct.train.trainer import Trainer
 
 _SMALL = AvatarConfig(gaussian_resolution=48, feature_resolution=32, feature_channels=8, pose_feature_channels=8,
@@ -120,14 +120,14 @@ def test_blended_gaussians_become_seen_and_the_share_rule(one_photo):
     assert int((blended & (cov.first_hits == 0)).sum()) > 0
     before = t.state.seen.clone()
     k = keep_seen_on_person(t.state, t.data, min_weight=W_PHOTO)
-    on = (cov.first_hits > 0) | blended
+    on = ((cov.first_hits > 0) | blended) & ~cov.faces_away  # nothing whose surface faces away
     assert torch.equal(t.state.seen, before & on | on & ~before)
     assert k.dropped == int((before & ~on).sum()) and k.added == int((on & ~before).sum()) > 0
     # without weights: first hits only, nothing added
     t2 = _trained(one_photo, avatar=_PHOTO_AVATAR)
     seen2 = t2.state.seen.clone()
     assert keep_seen_on_person(t2.state, t2.data).added == 0
-    assert torch.equal(t2.state.seen, seen2 & (cov.first_hits > 0))
+    assert torch.equal(t2.state.seen, seen2 & (cov.first_hits > 0) & ~cov.faces_away)
     # the share rule: with the person cut to the mask's left half, a Gaussian blended mostly into
     # the right half is not marked, however large its weight on the left
     for tgt in t.data.targets.values():
@@ -147,7 +147,8 @@ def test_blended_gaussians_become_seen_and_the_share_rule(one_photo):
 def test_the_fill_keeps_what_one_photo_drew(one_photo):
     """The end of Stage I on a single frame: with first hits alone the fill repaints Gaussians
     that draw a quarter pixel inside the person (and the photo changes); with the blend weights it
-    repaints none of them, and the photo changes less."""
+    repaints none of them but those whose surface faces away from the camera, and the photo
+    changes less."""
     change, repainted = {}, {}
     for w in (None, W_PHOTO):
         t = _trained(one_photo, steps=25, avatar=_PHOTO_AVATAR, seen_min_weight=w)
@@ -158,7 +159,8 @@ def test_the_fill_keeps_what_one_photo_drew(one_photo):
             with torch.no_grad():
                 return render_avatar(t.state.posed(i), tgt.camera, torch.zeros(3), normals=False).rgb
 
-        drew = blended_on_person(person_coverage(t.state, t.data, weights=True), W_PHOTO)
+        cov = person_coverage(t.state, t.data, weights=True)
+        drew = blended_on_person(cov, W_PHOTO) & ~cov.faces_away
         colors = t.model.canonical(None).colors.detach()
         a = render()
         note = t.plan.finish(t)
@@ -234,6 +236,36 @@ def test_the_layer_counts_only_frames_that_see_it_from_outside(tiny_scene, tiny_
         assert bool(((before[N:] > 0.05) & (after[N:] < 1e-3)).any())
     assert torch.allclose(flipped.weight_max[:N], cov.weight_max[:N])
     assert torch.allclose(flipped.total_max[:N], cov.total_max[:N])
+
+
+def test_body_gaussians_facing_away_from_every_camera_are_not_seen(one_photo, monkeypatch):
+    """A body Gaussian whose surface faces away from the camera by more than 120 degrees in every
+    frame is not seen, however much it blends in (the shoulders' backs behind a photo's hair):
+    the flags against the cosines in float64, and with the surface normals flipped (the same
+    renders) the front the photo saw is the side that faces away, and the recount unmarks it."""
+    t = _trained(one_photo, avatar=_PHOTO_AVATAR)
+    N = t.model.num_body
+    i = t.data.frames[0]
+    with torch.no_grad():
+        posed, normals = t.state.posed_with_surface_normals(i)
+    to_cam = t.data.targets[i].camera.center[None, :] - posed.means[:N].double().numpy()
+    cos = (to_cam * normals[:N].double().numpy()).sum(1) / np.linalg.norm(to_cam, axis=1)
+    cov = person_coverage(t.state, t.data, weights=True)
+    assert np.array_equal(cov.faces_away[:N].numpy(), cos < BODY_AWAY_COS)
+    assert 0 < int(cov.faces_away.sum()) < N // 2  # the back, not the front
+    front = (cov.first_hits > 0) & (torch.as_tensor(cos) > 0.6)
+    assert front.any() and not cov.faces_away[front].any()
+    read = t.state.posed_with_surface_normals
+
+    def inside_out(frame, *, surface=True):
+        posed, normals = read(frame, surface=surface)
+        return posed, None if normals is None else -normals
+
+    monkeypatch.setattr(t.state, "posed_with_surface_normals", inside_out)
+    t.state.seen[:] = True
+    k = keep_seen_on_person(t.state, t.data, min_weight=W_PHOTO)
+    assert not t.state.seen[front].any() and k.dropped > int(front.sum())
+    assert not k.blended_only[front].any()
 
 
 def test_setting_defaults_old_records_and_bad_values():

@@ -36,5 +36,6 @@ def pseudo_appearance(state, trusted: torch.Tensor, colors: torch.Tensor, neighb
         out = wrap_fill_colors(model.base_positions.cpu(), model.parts(), sources, colors, neighbours,
                                normals=model.base_normals.cpu() if grazing_rule else None,
                                no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
-                               layer_grid=model.layer_grid(), hair_seen=state.trusted_sources(neighbours, min(erosion, 1)))
+                               layer_grid=model.layer_grid(), hair_seen=state.trusted_sources(neighbours, min(erosion, 1)),
+                               surface_normals=model.base_normals.cpu())
     return torch.where((trusted & ~sources)[:, None], colors.clamp(0, 1).to(out.dtype), out)

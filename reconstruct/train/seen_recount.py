@@ -47,6 +47,14 @@ finish with the test, 22.92 without it; `docs/loose_clothing.md`, "A photo's own
 finish"). There is no facing test on the learned normals: without normal maps to fit, many of them
 turn away from the camera (the coat photo: 41 % of the Gaussians that draw it).
 
+One more test is on the body's surface normal, posed, and on the whole clip: a body Gaussian whose
+surface faces away from the camera by more than 120 degrees (cosine below ``BODY_AWAY_COS``) in
+every training frame is not seen, whatever it blends in or is the first hit of. It lies on the
+back, and what the images gave it is what lies in front at the silhouette: on a coat photo whose
+camera looked down over the shoulders, 178 torso Gaussians of the upper back kept the colours of
+the hair and the collar lying over the shoulders, and the back came out in blotches. Sides and a
+neck behind loose hair turn less than that from the camera and keep their colours.
+
 The weights are the gradient of the image with respect to a zero colour probe:
 d(sum of pixels)/d(colour) is the sum of alpha times transmittance over the pixels a Gaussian
 touches.
@@ -67,6 +75,9 @@ if TYPE_CHECKING:
     from .data import TrainingData
 
 PERSON = 0.5  # a pixel belongs to the person where its mask exceeds this
+# a body Gaussian whose posed surface normal makes a cosine below this with the direction to the
+# camera in every training frame (it faces away by more than 120 degrees) is not seen, first hit or not
+BODY_AWAY_COS = -0.5
 MIN_PERSON_SHARE = 0.5  # of a Gaussian's blend weight that must land on the person for it to count
 INSET = 2  # px: a frame's weight for the rule counts on the person's pixels this far inside the silhouette
 
@@ -82,6 +93,8 @@ class PersonCoverage:
     # (a garment layer's; the body's count in every frame)
     total_max: torch.Tensor | None = None  # (N,) float64: the largest one frame's blend weight on every pixel,
     # in frames that see its surface from outside (every frame for the body's Gaussians)
+    faces_away: torch.Tensor | None = None  # (N,) bool: body Gaussians whose surface faces away from the
+    # camera in every frame (cosine below BODY_AWAY_COS); None where the surface normals were not read
 
 
 class SeenRecount(NamedTuple):
@@ -98,13 +111,17 @@ def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: fl
     counts = torch.zeros(n, dtype=torch.long)
     zeros = (lambda: torch.zeros(n, dtype=torch.float64)) if weights else (lambda: None)
     weight, total, weight_max, total_max = zeros(), zeros(), zeros(), zeros()
-    nb = state.model.num_body  # the body is closed: no view sees it from within; only a layer's
-    # Gaussians (after the body's) need their surface normals, for the test below
+    nb = state.model.num_body  # the body's Gaussians come first, a garment layer's after them
     layer = weights and n > nb
+    best_cos = torch.full((nb,), -2.0, dtype=torch.float64)  # the body's, facing the cameras
     for i in data.frames:
         tgt = data.targets[i]
         with torch.no_grad():
-            posed, surface_normals = state.posed_with_surface_normals(i, surface=layer)
+            posed, surface_normals = state.posed_with_surface_normals(i)
+            centre = torch.as_tensor(tgt.camera.center, dtype=posed.means.dtype, device=posed.means.device)
+            to_cam = centre - posed.means[:nb]
+            cos = (to_cam * surface_normals[:nb]).sum(1) / to_cam.norm(dim=1).clamp_min(1e-9)
+            torch.maximum(best_cos, cos.cpu().double(), out=best_cos)
         person = tgt.mask > PERSON
         if weights:  # colours as a leaf: red carries the person-masked sum, green the whole image's,
             # blue the sum inside the silhouette's band
@@ -119,7 +136,6 @@ def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: fl
             total += g[:, 1]
             outside = torch.ones(n, dtype=torch.bool)
             if layer:  # a layer Gaussian counts where its surface is not seen from within
-                centre = torch.as_tensor(tgt.camera.center, dtype=posed.means.dtype, device=posed.means.device)
                 outside[nb:] = ((centre - posed.means[nb:]) * surface_normals[nb:]).sum(1).cpu() >= 0
             torch.maximum(weight_max, g[:, 2] * outside, out=weight_max)
             torch.maximum(total_max, g[:, 1] * outside, out=total_max)
@@ -130,7 +146,9 @@ def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: fl
         hit = r.first_hit.detach()
         hits = facing_hits(hit[person.to(hit.device) & (hit >= 0)], posed, tgt.camera)
         counts += torch.bincount(hits.cpu(), minlength=n)
-    return PersonCoverage(counts, weight, total, weight_max, total_max)
+    faces_away = torch.zeros(n, dtype=torch.bool)
+    faces_away[:nb] = best_cos < BODY_AWAY_COS
+    return PersonCoverage(counts, weight, total, weight_max, total_max, faces_away)
 
 
 def person_first_hits(state: AvatarState, data: TrainingData, *, hit_threshold: float = 0.5) -> torch.Tensor:
@@ -156,6 +174,8 @@ def keep_seen_on_person(state: AvatarState, data: TrainingData, *, hit_threshold
     on_person = cov.first_hits > 0
     if min_weight is not None:
         on_person |= blended_on_person(cov, min_weight)
+    if cov.faces_away is not None:
+        on_person &= ~cov.faces_away.to(on_person.device)
     drop = state.seen & ~on_person
     add = on_person & ~state.seen if min_weight is not None else torch.zeros_like(on_person)
     state.seen &= on_person
