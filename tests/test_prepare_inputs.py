@@ -21,7 +21,7 @@ from PIL import Image
 
 from reconstruct.data.prepare import (Crop, InputError, NoPersonError, PersonCandidate, PersonChoiceError,
                                       choose_person, person_crop, prepare_video)
-from reconstruct.data.prepare.crop import apply_crop
+from reconstruct.data.prepare.crop import apply_crop, edges_cut
 from reconstruct.data.prepare.fit import FitConfig
 from reconstruct.data.prepare.masks import fill_holes, remove_others
 from test_prepare_video import SyntheticSceneDetector
@@ -54,6 +54,7 @@ def test_single_image_and_folder_inputs(synth, tmp_path):
     assert report["input_kind"] == "image" and report["frames_used"] == 1
     assert (out / "prepare_report.png").is_file() and (out / "prepare_report.json").is_file()
     assert report["per_frame"][0]["name"] == "person.png"
+    assert report["cut_off"] == {}  # the whole body in view
     # a folder: images sorted by name (not by creation order), every one a frame
     shots = tmp_path / "shots"
     shots.mkdir()
@@ -387,6 +388,35 @@ def test_read_input_turns_images_and_videos(tmp_path):
 
 
 # ----- crop and camera ------------------------------------------------------------------------------
+def test_edges_that_cut_the_person_off():
+    # a 600 x 900 frame whose person (a box) runs off its bottom edge, cropped to 400 x 600 source
+    # pixels at (100, 300) -> 200 x 300: the frame's bottom is the crop's bottom
+    src = np.zeros((900, 600))
+    src[350:, 250:350] = 1.0
+    cr = Crop(100.0, 300.0, 400.0, 600.0, 200, 300)
+    mask = apply_crop(src[None], cr, resample="nearest")[0]
+    assert edges_cut(mask, cr, (600, 900)) == ["bottom"]
+    # whole in view: nothing; a few stray pixels at an edge are no cut (under min_share)
+    src[860:] = 0.0
+    assert edges_cut(apply_crop(src[None], cr, resample="nearest")[0], cr, (600, 900)) == []
+    src[899, 300] = 1.0
+    assert edges_cut(apply_crop(src[None], cr, resample="nearest")[0], cr, (600, 900)) == []
+    # a crop reaching past the frame's left edge (padded): the person at that edge is cut there,
+    # not at the crop's own left border
+    src = np.zeros((900, 600))
+    src[100:800, 0:80] = 1.0
+    pad = Crop(-100.0, 0.0, 600.0, 900.0, 200, 300)
+    m = apply_crop(src[None], pad, resample="nearest")[0]
+    assert m[:, :30].max() == 0.0  # the padding
+    assert edges_cut(m, pad, (600, 900)) == ["left"]
+    # a crop that shares only the frame's left edge: a mask filling it is cut there alone; one
+    # inside the frame on every side is cut by none (the crop's own border is no edge of the frame)
+    inner = Crop(0.0, 200.0, 300.0, 450.0, 200, 300)
+    assert edges_cut(apply_crop(src[None], inner, resample="nearest")[0], inner, (600, 900)) == ["left"]
+    assert edges_cut(np.ones((300, 200)), inner, (600, 900)) == ["left"]
+    assert edges_cut(np.ones((300, 200)), Crop(50.0, 200.0, 300.0, 450.0, 200, 300), (600, 900)) == []
+
+
 def test_crop_camera_reprojects_onto_the_same_pixels():
     from reconstruct.camera import Camera
     from reconstruct.data.prepare.fit import camera_rotation

@@ -100,3 +100,34 @@ def apply_crop(images: np.ndarray, crop: Crop, *, resample: str = "lanczos") -> 
             r = np.stack(res, -1)
             out.append(r[..., 0] if canvas.ndim == 2 else r)
     return np.stack(out)
+
+
+EDGES = ("top", "bottom", "left", "right")
+
+
+def edges_cut(mask: np.ndarray, crop: Crop, source_size: tuple[int, int], *, reach: float = 2.0,
+              min_share: float = 0.02) -> list[str]:
+    """The edges of the source frame that cut the person off, in one mask in crop pixels (H, W):
+    those of ``EDGES`` along which the person (mask > 0.5) reaches within ``reach`` crop pixels of
+    the edge over at least ``min_share`` of the crop's side (a photo cut at the knees: both legs at
+    the bottom edge). An edge outside the crop (the crop lies inside the frame there) or in its
+    padding cuts nothing. ``source_size``: the frame's (width, height) in source pixels."""
+    m = np.asarray(mask) > 0.5
+    H, W = m.shape
+    W0, H0 = source_size
+    sx, sy = crop.out_width / crop.width, crop.out_height / crop.height
+    # each edge's position in crop pixels and the side of it that lies inside the frame
+    lines = {"top": (-crop.y0 * sy, +1), "bottom": ((H0 - crop.y0) * sy, -1),
+             "left": (-crop.x0 * sx, +1), "right": ((W0 - crop.x0) * sx, -1)}
+    out = []
+    for name in EDGES:
+        at, inward = lines[name]
+        size = H if name in ("top", "bottom") else W
+        lo, hi = (at, at + reach) if inward > 0 else (at - reach, at)
+        lo, hi = max(int(np.floor(lo)), 0), min(int(np.ceil(hi)), size)
+        if hi <= lo:
+            continue
+        band = m[lo:hi] if name in ("top", "bottom") else m[:, lo:hi].T
+        if band.any(axis=0).mean() >= min_share:
+            out.append(name)
+    return out

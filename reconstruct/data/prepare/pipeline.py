@@ -26,7 +26,7 @@ import numpy as np
 
 from ..scene import BodySpec, Frame, Scene
 from ..scene_io import write_scene
-from .crop import Crop, apply_crop, person_crop
+from .crop import EDGES, Crop, apply_crop, edges_cut, person_crop
 from .detector import Detections, PersonDetector
 from .fit import FIT_BONES, CameraGuess, FitConfig, fit_poses, measure_fit
 from .inputs import InputError, input_kind, read_input
@@ -286,6 +286,16 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
 
     indices = video.indices[keep]
     kept_names = [n for n, k in zip(names, keep) if k]
+    # where the frame's edges cut the person off: what lies past them is guessed, never seen
+    cut = [edges_cut(m, cr, (W0, H0)) for m in kept.masks]
+    cut_off = {e: [int(i) for i, c in zip(indices, cut) if e in c] for e in EDGES}
+    cut_off = {e: v for e, v in cut_off.items() if v}
+    if cut_off:
+        n = kept.num_frames
+        log("the frame's edge cuts the person off: " + ", ".join(
+            f"{e} in {len(v)} of {n} {'frame' if n == 1 else 'frames'}" for e, v in cut_off.items())
+            + "; the avatar's parts past it are guessed, not seen (film or photograph the whole body "
+            "with some space round it)")
     scene_frames = []
     for k, (i, pose) in enumerate(zip(indices, fit.poses)):
         mask = kept.masks[k].astype(np.float32)
@@ -303,7 +313,7 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
         "image_size": [W, H], "source_size": list(video.source_size), "fps": video.fps,
         "person": None if track is None else {"picked": track.index, "people_found": track.count,
                                               "picked_by": track.picked_by},
-        "crop": cr.to_dict(), "source_frame_size": [W0, H0], "turned_deg": 90 * turns,
+        "crop": cr.to_dict(), "source_frame_size": [W0, H0], "turned_deg": 90 * turns, "cut_off": cut_off,
         "masks": {"source": mask_source,
                   "refined_frames": None if kept.refine_used is None else int(kept.refine_used.sum()),
                   "holes_filled": holes},
