@@ -21,7 +21,7 @@ from PIL import Image
 
 from reconstruct.data.prepare import (Crop, InputError, NoPersonError, PersonCandidate, PersonChoiceError,
                                       choose_person, person_crop, prepare_video)
-from reconstruct.data.prepare.crop import apply_crop, edges_cut
+from reconstruct.data.prepare.crop import apply_crop, edges_cut, near_edges
 from reconstruct.data.prepare.fit import FitConfig
 from reconstruct.data.prepare.masks import fill_holes, remove_others
 from test_prepare_video import SyntheticSceneDetector
@@ -54,7 +54,7 @@ def test_single_image_and_folder_inputs(synth, tmp_path):
     assert report["input_kind"] == "image" and report["frames_used"] == 1
     assert (out / "prepare_report.png").is_file() and (out / "prepare_report.json").is_file()
     assert report["per_frame"][0]["name"] == "person.png"
-    assert report["cut_off"] == {}  # the whole body in view
+    assert report["cut_off"] == {} and report["landmarks_at_cut_edges"] == 0  # the whole body in view
     # a folder: images sorted by name (not by creation order), every one a frame
     shots = tmp_path / "shots"
     shots.mkdir()
@@ -415,6 +415,22 @@ def test_edges_that_cut_the_person_off():
     assert edges_cut(apply_crop(src[None], inner, resample="nearest")[0], inner, (600, 900)) == ["left"]
     assert edges_cut(np.ones((300, 200)), inner, (600, 900)) == ["left"]
     assert edges_cut(np.ones((300, 200)), Crop(50.0, 200.0, 300.0, 450.0, 200, 300), (600, 900)) == []
+
+
+def test_landmarks_at_an_edge_that_cuts_the_person_off():
+    # the crop of the test above (200 x 300 crop pixels for 400 x 600 source pixels at (100, 300)):
+    # the frame's bottom edge is the crop's row 300, its left edge lies outside the crop (x = -50)
+    cr = Crop(100.0, 300.0, 400.0, 600.0, 200, 300)
+    pts = np.array([[100.0, 150.0],   # inside
+                    [100.0, 289.0],   # 11 px above the bottom edge: kept
+                    [100.0, 291.0],   # 9 px above it: a guess
+                    [100.0, 340.0],   # past it
+                    [-45.0, 150.0]])  # 5 px inside the left edge
+    np.testing.assert_array_equal(near_edges(pts, cr, (600, 900), ["bottom"], 10.0),
+                                  [False, False, True, True, False])
+    np.testing.assert_array_equal(near_edges(pts, cr, (600, 900), ["bottom", "left"], 10.0),
+                                  [False, False, True, True, True])
+    assert not near_edges(pts, cr, (600, 900), [], 10.0).any()
 
 
 def test_crop_camera_reprojects_onto_the_same_pixels():

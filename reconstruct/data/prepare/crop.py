@@ -105,6 +105,16 @@ def apply_crop(images: np.ndarray, crop: Crop, *, resample: str = "lanczos") -> 
 EDGES = ("top", "bottom", "left", "right")
 
 
+def _edge_lines(crop: Crop, source_size: tuple[int, int]) -> dict[str, tuple[float, int]]:
+    """{edge: (position, inward)}: each edge of the source frame in crop pixels (a row for the top
+    and the bottom, a column for the sides), and the side of it that lies inside the frame (+1:
+    larger coordinates)."""
+    W0, H0 = source_size
+    sx, sy = crop.out_width / crop.width, crop.out_height / crop.height
+    return {"top": (-crop.y0 * sy, +1), "bottom": ((H0 - crop.y0) * sy, -1),
+            "left": (-crop.x0 * sx, +1), "right": ((W0 - crop.x0) * sx, -1)}
+
+
 def edges_cut(mask: np.ndarray, crop: Crop, source_size: tuple[int, int], *, reach: float = 2.0,
               min_share: float = 0.02) -> list[str]:
     """The edges of the source frame that cut the person off, in one mask in crop pixels (H, W):
@@ -114,11 +124,7 @@ def edges_cut(mask: np.ndarray, crop: Crop, source_size: tuple[int, int], *, rea
     padding cuts nothing. ``source_size``: the frame's (width, height) in source pixels."""
     m = np.asarray(mask) > 0.5
     H, W = m.shape
-    W0, H0 = source_size
-    sx, sy = crop.out_width / crop.width, crop.out_height / crop.height
-    # each edge's position in crop pixels and the side of it that lies inside the frame
-    lines = {"top": (-crop.y0 * sy, +1), "bottom": ((H0 - crop.y0) * sy, -1),
-             "left": (-crop.x0 * sx, +1), "right": ((W0 - crop.x0) * sx, -1)}
+    lines = _edge_lines(crop, source_size)
     out = []
     for name in EDGES:
         at, inward = lines[name]
@@ -130,4 +136,19 @@ def edges_cut(mask: np.ndarray, crop: Crop, source_size: tuple[int, int], *, rea
         band = m[lo:hi] if name in ("top", "bottom") else m[:, lo:hi].T
         if band.any(axis=0).mean() >= min_share:
             out.append(name)
+    return out
+
+
+def near_edges(points: np.ndarray, crop: Crop, source_size: tuple[int, int], edges, margin: float) -> np.ndarray:
+    """(K,) bool: which of the points (K,2), crop pixels (x, y), lie within ``margin`` crop pixels of
+    one of the source frame's ``edges`` (names of ``EDGES``) or past it. A landmark the detector
+    puts there for a person the edge cuts off is a guess (the knees of a photo cut at the knees
+    come back at the frame's bottom row, with some confidence)."""
+    p = np.asarray(points, np.float64).reshape(-1, 2)
+    lines = _edge_lines(crop, source_size)
+    out = np.zeros(len(p), bool)
+    for name in edges:
+        at, inward = lines[name]
+        c = p[:, 1] if name in ("top", "bottom") else p[:, 0]
+        out |= (c - at) * inward < margin
     return out
