@@ -94,7 +94,7 @@ class PersonCoverage:
     total_max: torch.Tensor | None = None  # (N,) float64: the largest one frame's blend weight on every pixel,
     # in frames that see its surface from outside (every frame for the body's Gaussians)
     faces_away: torch.Tensor | None = None  # (N,) bool: body Gaussians whose surface faces away from the
-    # camera in every frame (cosine below BODY_AWAY_COS); None where the surface normals were not read
+    # camera in every frame (cosine below BODY_AWAY_COS); None: not computed (no test applies)
 
 
 class SeenRecount(NamedTuple):
@@ -118,10 +118,12 @@ def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: fl
         tgt = data.targets[i]
         with torch.no_grad():
             posed, surface_normals = state.posed_with_surface_normals(i)
+            # every Gaussian's surface against the direction to the camera: the body's test below
+            # (facing away in every frame) and a garment layer's (seen from outside in this one)
             centre = torch.as_tensor(tgt.camera.center, dtype=posed.means.dtype, device=posed.means.device)
-            to_cam = centre - posed.means[:nb]
-            cos = (to_cam * surface_normals[:nb]).sum(1) / to_cam.norm(dim=1).clamp_min(1e-9)
-            torch.maximum(best_cos, cos.cpu().double(), out=best_cos)
+            to_cam = centre - posed.means
+            cos = ((to_cam * surface_normals).sum(1) / to_cam.norm(dim=1).clamp_min(1e-9)).cpu().double()
+            torch.maximum(best_cos, cos[:nb], out=best_cos)
         person = tgt.mask > PERSON
         if weights:  # colours as a leaf: red carries the person-masked sum, green the whole image's,
             # blue the sum inside the silhouette's band
@@ -136,7 +138,7 @@ def person_coverage(state: AvatarState, data: TrainingData, *, hit_threshold: fl
             total += g[:, 1]
             outside = torch.ones(n, dtype=torch.bool)
             if layer:  # a layer Gaussian counts where its surface is not seen from within
-                outside[nb:] = ((centre - posed.means[nb:]) * surface_normals[nb:]).sum(1).cpu() >= 0
+                outside[nb:] = cos[nb:] >= 0
             torch.maximum(weight_max, g[:, 2] * outside, out=weight_max)
             torch.maximum(total_max, g[:, 1] * outside, out=total_max)
         else:
