@@ -454,9 +454,36 @@ def test_crop_camera_reprojects_onto_the_same_pixels():
     y, x = np.unravel_index(np.argmax(out), out.shape)
     cx, cy = crop.to_crop(np.array([600.5, 400.5]))
     assert abs(x + 0.5 - cx) <= 1.0 and abs(y + 0.5 - cy) <= 1.0
-    # a crop reaching beyond the frame is padded black
-    edge = person_crop((0.0, 0.0, 100.0, 300.0), W, H, 256)
+    # a crop reaching beyond the frame is padded black (the box is near its corner, not at it)
+    edge = person_crop((20.0, 40.0, 120.0, 340.0), W, H, 256)
     assert edge.x0 < 0 and apply_crop(np.full((1, H, W, 3), 200, np.uint8), edge)[0][:, :5].max() == 0
+
+
+def test_a_crop_is_never_padded_past_an_edge_that_cuts_the_person_off():
+    W, H = 1000, 1000
+    white = np.full((1, H, W, 3), 255, np.uint8)
+    # a person cut at the knees with room above the head: the box reaches the bottom edge. Grown by
+    # its margin the crop would reach 50 px past it, a black band the mask calls background (the
+    # silhouette fit bent the legs back out of it); it is moved up instead, keeping its size
+    box = (350.0, 350.0, 650.0, 1000.0)
+    free = person_crop(box, W, 2 * H, 512)  # the same box in a taller frame: no edge there
+    assert free.y0 + free.height > H
+    cut = person_crop(box, W, H, 512)
+    assert (cut.width, cut.height) == (free.width, free.height) and cut.y0 + cut.height == H
+    assert cut.y0 <= box[1] and cut.x0 == free.x0  # the whole box in, no move sideways
+    assert apply_crop(white, cut)[0][-3:].min() == 255  # no black rows at the bottom
+    # the same at the left edge, and at a corner; within ``BOX_AT_EDGE`` of an edge counts
+    left = person_crop((5.0, 300.0, 300.0, 700.0), W, H, 512)
+    assert left.x0 == 0 and apply_crop(white, left)[0][:, :3].min() == 255
+    corner = person_crop((0.0, 500.0, 300.0, 1000.0), W, H, 512)
+    assert corner.x0 == 0 and corner.y0 + corner.height == H
+    assert apply_crop(white, corner)[0].min() == 255
+    # a box away from the edges keeps its margin on every side; one cut at both the top and the
+    # bottom takes the frame's height
+    mid = person_crop((400.0, 200.0, 600.0, 800.0), W, H, 512)
+    assert mid.y0 < 200 and mid.y0 + mid.height > 800
+    tall = person_crop((400.0, 0.0, 600.0, 1000.0), W, H, 512)
+    assert (tall.y0, tall.height) == (0.0, 1000.0)
 
 
 # ----- masks ----------------------------------------------------------------------------------------

@@ -211,6 +211,46 @@ def test_prepare_fit_with_test_double(synth, video, tmp_path):
     assert outside < 0.04
 
 
+def test_limbs_whose_far_ends_the_frame_cuts_off_are_held_straight(synth):
+    """A frame cut above the knees (the mask empty below, knee to toe landmarks cut): the legs'
+    bones are held near their rest rotation. Without the hold (``cut`` not given) nothing but the
+    weak prior sees them, and the same fit turned them by 0.6-1.6 rad (frame 0, whose true legs
+    are within 0.1 rad of rest); held, 0.05-0.15."""
+    from reconstruct.data.prepare.fit import FIT_BONES, FitConfig, _Problem, fit_poses
+    from reconstruct.data.prepare.keypoints import LANDMARK_NAMES
+
+    body = synth.body_model()
+    frames = np.stack([f.image for f in synth.frames])
+    det = SyntheticSceneDetector(synth).detect(frames).select(np.arange(len(frames)) == 0)
+    ids = [i for i, n in enumerate(LANDMARK_NAMES) if any(k in n for k in ("knee", "ankle", "heel", "foot_index"))]
+    knees = [LANDMARK_NAMES.index("left_knee"), LANDMARK_NAMES.index("right_knee")]
+    det.masks[0, int(det.keypoints[0, knees, 1].min()) - 3:] = 0.0
+    det.visibility[0, ids] = 0.0
+    det.cut = np.zeros(det.visibility.shape, bool)
+    det.cut[0, ids] = True
+    legs = ["upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R"]
+    P = _Problem(body, det, FitConfig(), None, None)
+    held = {FIT_BONES[i] for i in np.flatnonzero(P.held[0].numpy())}
+    assert held == set(legs)
+    fit = fit_poses(body, det, FitConfig())
+    canon, labels = body.canonical_joint_rotations(), list(body.bone_labels)
+    turned = [float(np.linalg.norm(fit.poses[0].joint_rotations[labels.index(n)] - canon[labels.index(n)]))
+              for n in legs]
+    assert max(turned) < 0.25, turned
+    # an elbow cut off holds the upper arm, a wrist the forearm; the other frames' bones are free
+    two = type(det)(np.repeat(det.keypoints, 2, 0), np.repeat(det.visibility, 2, 0), None,
+                    np.repeat(det.masks, 2, 0), np.ones(2, bool), cut=np.zeros((2, len(LANDMARK_NAMES)), bool))
+    two.cut[1, LANDMARK_NAMES.index("right_elbow")] = True
+    two.cut[1, LANDMARK_NAMES.index("left_wrist")] = True
+    P = _Problem(body, two, FitConfig(), None, None)
+    assert not P.held[0].any()
+    assert {FIT_BONES[i] for i in np.flatnonzero(P.held[1].numpy())} == {"upperarm01.R", "lowerarm01.L"}
+    # ``select`` carries the flags; nothing cut: no hold at all
+    assert _Problem(body, det.select(np.array([True])), FitConfig(), None, None).held is not None
+    det.cut[:] = False
+    assert _Problem(body, det, FitConfig(), None, None).held is None
+
+
 def test_fit_config_rejects_a_negative_mask_growth():
     from reconstruct.data.prepare.fit import FitConfig
 

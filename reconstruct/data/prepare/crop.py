@@ -43,11 +43,34 @@ class Crop:
                 "out_width": self.out_width, "out_height": self.out_height}
 
 
+# a person's box within this share of the frame's longer side of one of its edges reaches that edge
+BOX_AT_EDGE = 0.01
+
+
+def _inside_cut_edges(lo: float, size: float, extent: float, at_lo: bool, at_hi: bool) -> float:
+    """The crop's start along one axis, moved so that the crop (``size`` long, no longer than the
+    frame's ``extent``) does not reach past an edge the person's box reaches (``at_lo``: the frame's
+    start, ``at_hi``: its end)."""
+    if at_hi and lo + size > extent:
+        lo = extent - size
+    if at_lo and lo < 0:
+        lo = 0.0
+    return lo
+
+
 def person_crop(box: tuple[float, float, float, float] | None, width: int, height: int, out_size: int,
-                *, margin: float = 0.1, min_aspect: float = 0.75) -> Crop:
+                *, margin: float = 0.1, min_aspect: float = 0.75, edge_reach: float | None = None) -> Crop:
     """The crop around ``box`` (x0, y0, x1, y1): grown by ``margin`` of its height on every side, widened to
     at least ``min_aspect`` (width / height; a square-ish frame for a standing person), its longer side
-    resized to ``out_size``. None or a box of the whole frame: the whole frame."""
+    resized to ``out_size``. None or a box of the whole frame: the whole frame.
+
+    Padding (black, past the frame) is never put beyond an edge of the frame that the box reaches
+    (within ``edge_reach`` source pixels; default ``BOX_AT_EDGE`` of the frame's longer side): the
+    frame cuts the person off there, and a padded band would say that nothing lies past the edge --
+    the mask is empty in it -- where the person goes on unseen. (A photo cut at the knees with room
+    above the head: the silhouette fit bent the legs back out of the band, and training would empty
+    them.) The crop is moved inwards instead, or, where it is longer than the frame, is the frame's
+    extent along that axis."""
     if box is None:
         x0, y0, x1, y1 = 0.0, 0.0, float(width), float(height)
     else:
@@ -71,6 +94,11 @@ def person_crop(box: tuple[float, float, float, float] | None, width: int, heigh
     # whole pixels for the corner and size keep the resampling simple; same aspect in and out
     x0, y0 = float(np.floor(x0)), float(np.floor(y0))
     w, h = float(np.ceil(w)), float(np.ceil(h))
+    if box is not None:
+        reach = BOX_AT_EDGE * max(width, height) if edge_reach is None else edge_reach
+        bx0, by0, bx1, by1 = box
+        x0 = _inside_cut_edges(x0, w, width, bx0 <= reach, bx1 >= width - reach)
+        y0 = _inside_cut_edges(y0, h, height, by0 <= reach, by1 >= height - reach)
     s = out_size / max(w, h)
     ow, oh = max(8, int(round(w * s))), max(8, int(round(h * s)))
     return Crop(x0, y0, w, h, ow, oh)

@@ -57,6 +57,9 @@ class Detections:
     info: dict = field(default_factory=dict)
     raw_masks: np.ndarray | None = None  # (T,H,W) the segmenter's masks before refinement, if refined
     refine_used: np.ndarray | None = None  # (T,) where the refinement was kept
+    # (T,33) bool or None: landmarks at or past an edge of the frame that cuts the person off (the
+    # pipeline sets their visibility to 0); the fit holds the limbs that end there straight
+    cut: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         T = len(self.found)
@@ -70,6 +73,9 @@ class Detections:
                                     f"{arr.shape}, expected {shape}")
             if not np.all(np.isfinite(arr)):
                 raise DetectorError(f"detections from {self.source or 'the detector'}: {name} has non-finite values")
+        if self.cut is not None and np.shape(self.cut) != (T, NUM_LANDMARKS):
+            raise DetectorError(f"detections from {self.source or 'the detector'}: cut has shape "
+                                f"{np.shape(self.cut)}, expected {(T, NUM_LANDMARKS)}")
         if self.masks.ndim != 3 or self.masks.shape[0] != T:
             raise DetectorError(f"detections from {self.source or 'the detector'}: masks have shape "
                                 f"{self.masks.shape}, expected ({T}, H, W)")
@@ -95,7 +101,8 @@ class Detections:
         return Detections(self.keypoints[keep], self.visibility[keep], None if self.world is None else self.world[keep],
                           self.masks[keep], self.found[keep], self.source, dict(self.info),
                           None if self.raw_masks is None else self.raw_masks[keep],
-                          None if self.refine_used is None else self.refine_used[keep])
+                          None if self.refine_used is None else self.refine_used[keep],
+                          None if self.cut is None else self.cut[keep])
 
 
 @dataclass

@@ -17,7 +17,8 @@ Losses (all frames at once, Adam):
               grown by one pixel (the splats reach that far beyond the mesh's edge); the focal length is
               held during this stage;
   prior       L2 on the bone rotations (heavier on spine and neck, on the off-axis parts of knees
-              and elbows), a penalty on knees and elbows bending backwards;
+              and elbows), a penalty on knees and elbows bending backwards; a limb bone whose far-end
+              landmark an edge of the frame cuts off is held near its rest rotation (``w_cut``);
   smoothness  squared second differences over time of rotations, orientation and translation;
   upright     where one view cannot tell depth (the body barely turns; the person barely moves), a
               prior that keeps the body's up axis vertical and the legs under the hips (no common
@@ -40,7 +41,7 @@ from ...body.lbs import apply_points, blend
 from ...body.pose import BodyPose, axis_angle_to_matrix, rigid
 from ...camera import Camera
 from .detector import Detections
-from .keypoints import SEGMENTS, KeypointMap, require_bones
+from .keypoints import LANDMARK_NAMES, SEGMENTS, KeypointMap, require_bones
 from .shape import ShapeBasis
 from .silhouette import mesh_silhouette
 
@@ -52,6 +53,10 @@ _PRIOR = {"spine03": (40, 40, 40), "spine01": (40, 40, 40), "neck01": (2, 2, 2),
           "lowerleg01.L": (0.5, 4, 4), "lowerleg01.R": (0.5, 4, 4)}
 # hinge direction: knees bend with +x, elbows with -x (see synthetic/motion.py)
 _HINGE_SIGN = {"lowerleg01.L": 1.0, "lowerleg01.R": 1.0, "lowerarm01.L": -1.0, "lowerarm01.R": -1.0}
+# the landmark at the far end of each limb bone: the bone is held straight in a frame whose edge cuts it off
+_LIMB_ENDS = {"upperarm01.L": "left_elbow", "upperarm01.R": "right_elbow", "lowerarm01.L": "left_wrist",
+              "lowerarm01.R": "right_wrist", "upperleg01.L": "left_knee", "upperleg01.R": "right_knee",
+              "lowerleg01.L": "left_ankle", "lowerleg01.R": "right_ankle"}
 CAMERA_NAME = "video"
 
 
@@ -83,6 +88,13 @@ class FitConfig:
     w_shape: float = 2e-4  # prior on the phenotype offsets (in units of their prior std)
     w_upright: float = 1.0  # keeps the body's up axis vertical where depth is ambiguous
     w_legs: float = 0.2  # keeps the legs under the hips where depth is ambiguous
+    # holds a limb bone at its rest rotation (a straight limb) in a frame whose edge cuts off the
+    # landmark at its far end (``Detections.cut``): nothing but the priors sees it, and at
+    # ``w_prior`` they let it drift. A photo cut at the knees with room above the head: the thigh
+    # turned 105 degrees about its own axis in the keypoint fit, and the silhouette then bent the
+    # shin sideways at the knee by 63 degrees (seen from the side, a leg kicked back: lean -10.9
+    # degrees, against +1.2 held). The spine's prior is 40 times ``w_prior``; this is 50
+    w_cut: float = 0.01
     upright: str = "auto"  # auto (from how much the body turns and moves), on, off
     stature_m: float | None = None  # the person's height if known (else a population prior)
     w_pitch: float = 0.02  # prior toward a level camera (on the pitch in radians, squared)
@@ -289,6 +301,13 @@ class _Problem:
         self.hinge = [(FIT_BONES.index(n), s) for n, s in _HINGE_SIGN.items()]
         self.legs = [FIT_BONES.index(n) for n in ("upperleg01.L", "upperleg01.R")]
         self.shins = [FIT_BONES.index(n) for n in ("lowerleg01.L", "lowerleg01.R")]
+        # (T,B): the limb bones whose far-end landmark an edge of the frame cuts off, per frame
+        self.held = None
+        if det.cut is not None and np.any(det.cut):
+            held = np.zeros((T, len(FIT_BONES)))
+            for bone, landmark in _LIMB_ENDS.items():
+                held[:, FIT_BONES.index(bone)] = det.cut[:, LANDMARK_NAMES.index(landmark)]
+            self.held = torch.as_tensor(held, dtype=f64)
         if shape is not None:
             if not self.kin.fast:
                 raise ValueError(f"body {body.name!r}: fitting the shape needs the fast kinematics")
@@ -506,6 +525,8 @@ def _fit(body: BodyModel, det: Detections, config: FitConfig, shape: ShapeBasis 
             diff = (swing[:, 0] - swing[:, 1]).pow(2).mean()
             total = total + amb["turn"] * (config.w_legs * (common + spine)
                                            + config.w_legs * amb["static"] * diff)
+        if P.held is not None and config.w_cut > 0:
+            total = total + config.w_cut * (P.held[:, :, None] * rot * rot).sum(dim=(1, 2)).mean()
         if P.z is not None:
             total = total + config.w_shape * P.shape.prior(P.z)
         return total

@@ -275,11 +275,13 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
     # detector's landmarks at such an edge are guesses too (left out of the fit)
     cut = [edges_cut(m, cr, (W0, H0)) for m in kept.masks]
     at_edge = 0
+    kept.cut = np.zeros(kept.visibility.shape, bool)
     for k, edges in enumerate(cut):
         if edges:
             near = near_edges(kept.keypoints[k], cr, (W0, H0), edges, EDGE_LANDMARK_MARGIN * max(W, H))
             at_edge += int((near & (kept.visibility[k] > 0)).sum())
             kept.visibility[k, near] = 0.0
+            kept.cut[k] = near
     base_spec = BodySpec.anny(dict(phenotype or DEFAULT_PHENOTYPE), 5.0)
     body = base_spec.build()
     shape = ShapeBasis.build(dict(base_spec.params), 5.0, base_body=body,
