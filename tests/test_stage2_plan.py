@@ -282,3 +282,41 @@ def test_colour_sources_round_trip_through_the_state_dict(stage1):
     d["colour_sources"] = flags[:-1]
     with pytest.raises(ValueError, match="colour_sources has shape"):
         other.load_state_dict(d)
+
+
+def test_cut_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1):
+    """``AvatarState.cut_colors`` (Stage I's finish: the colours for the Gaussians in no training
+    image) are saved and loaded with the state, copied by ``frozen``, and Stage II's
+    pseudo-appearance paints the body past the cut with them, as Stage I's fill did."""
+    from reconstruct.avatar.state import AvatarState
+    from reconstruct.body.parts import PART_INDEX
+
+    state = stage1.state
+    assert state.cut_colors is not None and torch.isnan(state.cut_colors).all()  # the whole person in view
+    model = state.model
+    legs = torch.as_tensor(np.isin(model.parts(), [PART_INDEX[p] for p in ("shin.L", "shin.R", "foot.L", "foot.R")]))
+    cut = torch.full((model.num_gaussians, 3), float("nan"))
+    cut[legs] = torch.tensor([0.1, 0.2, 0.7])
+    state.cut_colors = cut.clone()
+    d = state.state_dict()
+    other = AvatarState(state.body, state.model, state.poses)
+    other.load_state_dict(d)
+    assert torch.equal(other.cut_colors.isnan(), cut.isnan()) and torch.equal(other.cut_colors[legs], cut[legs])
+    assert torch.equal(state.frozen().cut_colors[legs], cut[legs])
+    d.pop("cut_colors")  # a checkpoint from before them: nothing counted out of view
+    other.load_state_dict(d)
+    assert other.cut_colors is None
+    d["cut_colors"] = cut[:-1]
+    with pytest.raises(ValueError, match="cut_colors has shape"):
+        other.load_state_dict(d)
+    s2 = _start(stage1, _cfg())
+    s2.state.cut_colors = cut.clone()
+    plan, nb = s2.plan, model.neighbours()
+    colors = torch.rand((model.num_gaussians, 3), generator=torch.Generator().manual_seed(0))
+    with_cut = plan.propagated_colors(model, s2.state, colors, nb)
+    s2.state.cut_colors = None
+    without = plan.propagated_colors(model, s2.state, colors, nb)
+    painted = legs & ~s2.state.trusted_seen
+    assert bool(painted.any())
+    assert torch.allclose(with_cut[painted], torch.tensor([0.1, 0.2, 0.7]).expand(int(painted.sum()), 3), atol=1e-6)
+    assert torch.equal(with_cut[~painted], without[~painted])

@@ -37,5 +37,5 @@ def pseudo_appearance(state, trusted: torch.Tensor, colors: torch.Tensor, neighb
                                normals=model.base_normals.cpu() if grazing_rule else None,
                                no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
                                layer_grid=model.layer_grid(), hair_seen=state.trusted_sources(neighbours, min(erosion, 1)),
-                               surface_normals=model.base_normals.cpu())
+                               surface_normals=model.base_normals.cpu(), cut_colors=state.cut_colors)
     return torch.where((trusted & ~sources)[:, None], colors.clamp(0, 1).to(out.dtype), out)

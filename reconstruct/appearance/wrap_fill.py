@@ -71,6 +71,7 @@ from scipy.spatial import cKDTree
 
 from ..avatar.garment_layer import GARMENT_PART
 from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
+from .cut_fill import apply_cut_colors
 from .hair import face_coloured, hair_covered, hair_sources, skin_reference
 from .periodic_fill import continue_layer
 
@@ -215,6 +216,10 @@ class WrapFillConfig:
     # closes higher than a front: the upper back takes the band of the sides below it
     neckline_parts: tuple[str, ...] = ("torso",)
     neckline_reach: float = 0.15
+    # the body in no training image (past the edge of a photo that cuts the person off; given
+    # ``wrap_fill_colors(cut_colors=...)``) takes the colour the images show where it crosses the
+    # edge, one per limb and both limbs of a pair alike (``cut_fill``)
+    cut_fill: bool = True
 
 
 def grazing_rule_for(stage1_settings) -> bool:
@@ -409,7 +414,7 @@ def reliable_seen(seen: np.ndarray, normals: np.ndarray | None, parts: np.ndarra
 def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | None = None,
                      config: WrapFillConfig = WrapFillConfig(), normals=None, no_mirror=None,
                      under_layer=None, layer_grid: tuple[int, int, int] | None = None,
-                     hair_seen=None, surface_normals=None) -> torch.Tensor:
+                     hair_seen=None, surface_normals=None, cut_colors=None) -> torch.Tensor:
     """(N,3) float32 colours: the reliably seen Gaussians' own, the others (unseen, or seen only
     at grazing incidence when ``normals`` are given) filled as described in the module docstring.
     ``positions``, ``normals``: canonical (N,3); ``parts``: (N,) body-part indices; ``seen``: (N,)
@@ -432,7 +437,9 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     face the front from behind the torso's mean depth (its belly lies in front): on a coat photo
     cut at the knees, 69 front-facing Gaussians there (5.3 % of its visible back) took the torso
     for seen behind, and its upper back took the same-height medians of the hair, the collar and
-    the scarf round the shoulders as blotches instead of the front-only median."""
+    the scarf round the shoulders as blotches instead of the front-only median. ``cut_colors``:
+    (N,3), NaN but for the Gaussians in no training image (``AvatarState.cut_colors``): the body's
+    unseen ones among them take it (``cut_fill``, ``WrapFillConfig.cut_fill``)."""
     cfg = config
     no_mirror = None if no_mirror is None else _as_np(no_mirror, bool)
     pos = _as_np(positions)
@@ -698,4 +705,9 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     if ul is not None:
         hide = (ul >= 0) & ~seen
         out[hide] = out[ul[hide]]
+    if cut_colors is not None and cfg.cut_fill:
+        cut = _as_np(cut_colors)
+        if cut.shape != (len(pos), 3):
+            raise ValueError(f"wrap_fill_colors: cut_colors must have shape ({len(pos)}, 3), found {cut.shape}")
+        out = apply_cut_colors(out, parts, seen, cut, under_layer=ul)
     return torch.as_tensor(np.clip(out, 0.0, 1.0), dtype=torch.float32)

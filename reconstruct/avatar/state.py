@@ -60,6 +60,11 @@ class AvatarState:
         # not those seen by their blend weight alone, nor layer Gaussians that show the body); None:
         # all seen ones (runs from before it)
         self.colour_sources: torch.Tensor | None = None
+        # (N,3) float: for the Gaussians in no training frame's image (past the edge of a photo
+        # that cuts the person off) the colour the images show where their limb crosses the edge,
+        # NaN for the others; set by Stage I's finish, given to the fills (``appearance/cut_fill``).
+        # None: not counted (runs from before it)
+        self.cut_colors: torch.Tensor | None = None
         self.edits = EditList((), model.num_gaussians)
         self._transforms: dict[int, torch.Tensor] = {}
         self._articulations: dict[int, torch.Tensor] = {}
@@ -224,6 +229,7 @@ class AvatarState:
         f.seen = self.seen.clone()
         f._trusted_seen = None if self._trusted_seen is None else self._trusted_seen.clone()
         f.colour_sources = None if self.colour_sources is None else self.colour_sources.clone()
+        f.cut_colors = None if self.cut_colors is None else self.cut_colors.clone()
         f.edits = self.edits  # immutable
         f._transforms = dict(self._transforms)
         f._articulations = dict(self._articulations)
@@ -236,7 +242,8 @@ class AvatarState:
         out = {"model": self.model.state_dict(), "pose_delta": self.pose_delta.detach().clone(),
                "seen": self.seen.clone(),
                "trusted_seen": None if self._trusted_seen is None else self._trusted_seen.clone(),
-               "colour_sources": None if self.colour_sources is None else self.colour_sources.clone()}
+               "colour_sources": None if self.colour_sources is None else self.colour_sources.clone(),
+               "cut_colors": None if self.cut_colors is None else self.cut_colors.clone()}
         if self.model.layer is not None:
             out["garment_layer"] = self.model.layer.to_state()
         return out
@@ -265,6 +272,11 @@ class AvatarState:
             raise ValueError(f"the avatar state's colour_sources has shape {tuple(cs.shape)}; "
                              f"its seen flags have {tuple(self.seen.shape)}")
         self.colour_sources = None if cs is None else cs.clone().bool()
+        cc = state.get("cut_colors")  # absent in checkpoints from before it: not counted
+        if cc is not None and tuple(cc.shape) != (len(self.seen), 3):
+            raise ValueError(f"the avatar state's cut_colors has shape {tuple(cc.shape)}; "
+                             f"expected ({len(self.seen)}, 3), one colour per Gaussian")
+        self.cut_colors = None if cc is None else cc.clone().float()
 
     def replace_model(self, model: AvatarModel) -> None:
         """Train ``model`` from now on (a model with a different garment layer, before a checkpoint
@@ -273,6 +285,7 @@ class AvatarState:
         self.seen = torch.zeros(model.num_gaussians, dtype=torch.bool)
         self._trusted_seen = None
         self.colour_sources = None
+        self.cut_colors = None
         self.edits = EditList((), model.num_gaussians)
 
     @torch.no_grad()

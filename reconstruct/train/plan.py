@@ -15,7 +15,7 @@ from ..appearance.wrap_fill import grazing_rule_for
 from ..avatar.layer_depth import match_layer_depth
 from .seen_recount import keep_seen_on_person, person_coverage
 from .steps import GivenViewStep, TrainingStep
-from .unseen_fill import (fill_unseen_colors, fill_unseen_layer_opacity, layer_reached, layer_through,
+from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, layer_reached, layer_through,
                           layer_training_views)
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
@@ -98,6 +98,11 @@ class Stage1Plan(StagePlan):
                 notes.append(f"{k.added} Gaussians the images blended into the person (no first hit) are seen")
             not_sources = k.blended_only  # seen by their blend weight alone: no colour source
         if s.fill_unseen:
+            # the body past the frame's edges: the fills give it the colours at the cut
+            state.cut_colors = cut_colors_of(state, context.data)
+            past = int(torch.isfinite(state.cut_colors).all(1).sum())
+            if past:
+                notes.append(f"{past} Gaussians in no training image take the colours where their limbs cross the frame's edge")
             # the layer's opacity first: the colours of the body under the cloth follow the cloth
             # where it is opaque (``layer_cover``)
             n_layer, ring_trained = 0, None

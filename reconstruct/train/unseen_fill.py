@@ -45,6 +45,7 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_dilation
 
+from ..appearance.cut_fill import FrameView, cut_colors
 from ..appearance.propagation import erode, erode_by_part
 from ..appearance.wrap_fill import wrap_fill_colors
 from ..avatar.garment_layer import spread_frames
@@ -92,7 +93,7 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
                               normals=model.base_normals.cpu() if grazing_rule else None, no_mirror=state.edits.redone,
                               under_layer=model_body_under_layer(model), layer_grid=model.layer_grid(),
                               hair_seen=torch.as_tensor(erode(sources.numpy(), neighbours, min(erosion, 1))),
-                              surface_normals=model.base_normals.cpu())
+                              surface_normals=model.base_normals.cpu(), cut_colors=state.cut_colors)
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
     if ring_trained is not None:
         ring_trained = torch.as_tensor(ring_trained, dtype=torch.bool).cpu()
@@ -107,6 +108,43 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     residual.data[idx.to(residual.device)] = ((target - decoded_logit) / cfg.color_residual_gain).to(
         residual.device, residual.dtype)
     return int(len(idx))
+
+
+def _frame_views(state: AvatarState, data: TrainingData):
+    """The training frames as ``appearance.cut_fill.FrameView``s, each posed when it is read (the
+    frame's whole image, not the crop training works on)."""
+    for i in data.frames:
+        f = data.scene.frames[i]
+        uv, z = f.camera.project(state.posed(i).means.detach().cpu().double().numpy())
+        yield FrameView(uv, z > 0, f.image, f.mask)
+
+
+@torch.no_grad()
+def out_of_view(state: AvatarState, data: TrainingData) -> torch.Tensor:
+    """(N+M,) bool: the Gaussians whose posed centre lies in no training frame's image (outside it,
+    or behind its camera, in every frame): past the edges of a photo that cuts the person off."""
+    inside = np.zeros(state.model.num_gaussians, bool)
+    for view in _frame_views(state, data):
+        inside |= view.inside()
+    return torch.as_tensor(~inside)
+
+
+# pixels (a share of the image's longer side) from an edge within which the images show what a limb
+# wears where it crosses the edge (``prepare``'s landmarks at a cut edge use the same reach)
+CUT_EDGE_SHARE = 0.02
+
+
+@torch.no_grad()
+def cut_colors_of(state: AvatarState, data: TrainingData, *, edge_share: float = CUT_EDGE_SHARE) -> torch.Tensor:
+    """(N+M,3) float32: ``appearance.cut_fill.cut_colors`` for the Gaussians ``out_of_view``, read
+    on every training frame's whole image within ``edge_share`` of its longer side of the edges; NaN
+    for the others (all NaN when the whole person is in view: the frames are then posed once)."""
+    beyond = out_of_view(state, data).numpy()
+    if not beyond.any():
+        return torch.full((len(beyond), 3), float("nan"))
+    cam = data.scene.frames[data.frames[0]].camera
+    return torch.as_tensor(cut_colors(state.model.parts(), beyond, _frame_views(state, data),
+                                      edge_px=edge_share * max(cam.width, cam.height)))
 
 
 @torch.no_grad()
