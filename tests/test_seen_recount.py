@@ -80,3 +80,54 @@ def test_end_of_stage_one_recounts_only_when_asked(tiny_scene, tiny_config):
     rec = Stage1Config().to_dict()
     del rec["seen_on_person"]
     assert not Stage1Config.from_dict(rec).seen_on_person
+
+
+def test_seen_gaussians_training_never_coloured_are_unseen(tiny_scene, tiny_config):
+    """The premise: a Gaussian's colour residual leaves zero on the first step that gives it a colour
+    gradient and not before (Adam, from zeros), so an all-zero row is a colour training never
+    touched. ``unsee_untrained`` unmarks exactly the seen ones among those; a model without the
+    residual tells nothing."""
+    from reconstruct.train.seen_recount import unsee_untrained, untrained_colours
+
+    t = Trainer(tiny_scene, tiny_config)
+    residual = t.model.decoder.color_residual
+    assert bool(untrained_colours(t.model).all())  # nothing trained yet
+    t.step()
+    touched = (residual.grad != 0).any(1).cpu()
+    assert 0 < int(touched.sum()) < len(touched)
+    np.testing.assert_array_equal(untrained_colours(t.model).numpy(), ~touched.numpy())
+    for _ in range(5):
+        t.step()
+    untrained = untrained_colours(t.model)
+    seen = t.state.seen.clone()
+    assert bool((seen & ~untrained).any())
+    # make some seen Gaussians untouched again: they, and only they, become unseen
+    pick = torch.nonzero(seen & ~untrained).squeeze(1)[::3]
+    with torch.no_grad():
+        residual[pick] = 0.0
+    want = seen & untrained_colours(t.model)
+    assert int(want.sum()) >= len(pick) > 0
+    assert unsee_untrained(t.state) == int(want.sum())
+    assert torch.equal(t.state.seen, seen & ~want)
+    # without the residual: None, and nothing unmarked
+    import dataclasses
+
+    legacy = Trainer(tiny_scene, dataclasses.replace(tiny_config, avatar=dataclasses.replace(tiny_config.avatar, color_residual=False)))
+    legacy.step()
+    assert untrained_colours(legacy.model) is None and unsee_untrained(legacy.state) == 0
+
+
+def test_the_finish_leaves_no_seen_gaussian_training_never_coloured(tiny_scene, tiny_config):
+    t = _trained(tiny_scene, tiny_config)
+    from reconstruct.train.seen_recount import untrained_colours
+
+    with torch.no_grad():
+        t.model.decoder.color_residual[torch.nonzero(t.state.seen).squeeze(1)[::5]] = 0.0
+    note = t.plan.finish(t)
+    assert "whose colour training never touched are unseen" in note
+    # the fill sets the residuals of what it paints, so every row is touched now; the seen ones were before it
+    assert not bool((t.state.seen & untrained_colours(t.model)).any())
+    off = _trained(tiny_scene, tiny_config, seen_trained_only=False)
+    with torch.no_grad():
+        off.model.decoder.color_residual[torch.nonzero(off.state.seen).squeeze(1)[::5]] = 0.0
+    assert "never touched" not in (off.plan.finish(off) or "")

@@ -105,7 +105,12 @@ def test_trainer_fills_once_at_the_end_of_stage1(tiny_scene, tiny_config, tmp_pa
 
     calls = []
     real = plan_module.fill_unseen_colors
-    monkeypatch.setattr(plan_module, "fill_unseen_colors", lambda state, **kw: calls.append(kw) or real(state, **kw))
+    from reconstruct.train.seen_recount import untrained_colours
+
+    touched = []  # the colours training touched, when the fill is called
+    monkeypatch.setattr(plan_module, "fill_unseen_colors",
+                        lambda state, **kw: touched.append(~untrained_colours(state.model)) or calls.append(kw)
+                        or real(state, **kw))
     tiny_config.iters = 5
     t = Trainer(tiny_scene, tiny_config, tmp_path / "run")
     for _ in range(4):
@@ -116,8 +121,10 @@ def test_trainer_fills_once_at_the_end_of_stage1(tiny_scene, tiny_config, tmp_pa
     # seen by their blend weight alone are not (a bool per Gaussian)
     assert t.done and len(calls) == 1
     not_sources = calls[0].pop("not_sources")
-    # the tiny scene has no garment layer: the whole ring of the body keeps its decoded colours
+    # the tiny scene has no garment layer: the whole ring of the body keeps its decoded colours;
+    # no seen Gaussian is one whose colour training never touched (``seen_trained_only``)
     assert calls == [{"keep_ring": tiny_config.fill_unseen_ring, "grazing_rule": False, "ring_trained": None}]
+    assert bool((~touched[0]).any()) and not bool((t.state.seen & ~touched[0]).any())
     assert not_sources.dtype == torch.bool and not_sources.shape == (t.state.num_gaussians,)
     assert not (not_sources & ~t.state.seen).any()
     t.step()  # a step past the end (the studio's single step) does not fill again

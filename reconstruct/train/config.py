@@ -129,6 +129,16 @@ class Stage1Config(StageSettings):
     # 1: +0.47 dB unseen after Stage I). They are unseen, and the fill gives them the cloth's
     # outer colours (train/unseen_fill.py, layer_seen_inside)
     layer_seen_inside: bool = True
+    # ... and a seen Gaussian whose colour training never touched (its colour residual is still
+    # exactly its initial zero: no step gave it a colour gradient) is unseen: its colour is the
+    # decoder's guess for an untrained texel, a grey-mauve. Training culls Gaussians facing away
+    # from the camera (``cull_backfacing``), and the recount renders them all: on a photo's upper
+    # back, facing away by 118-120 degrees, some blend through the front into the person's pixels,
+    # were "seen" by their weight, and kept that colour (with their unseen ring) as blotches
+    # (train/seen_recount.py, untrained_colours). (The fill's ring -- unseen Gaussians next to a
+    # seen one, which keep their decoded colour -- is left as it is: filling its untouched ones
+    # changed the photos' own views at the silhouette's edge, -0.42 dB on one)
+    seen_trained_only: bool = True
     # at the end of Stage I the garment layer's front and back move inward in depth by the amount
     # training pulled its sides in more (a splat is drawn past its centre, and the front view's
     # outline pulled the sides in; the front and back kept their built depth and stood some 6 mm
@@ -192,7 +202,7 @@ class Stage1Config(StageSettings):
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False, lambda_normal_prior=0.0,
                     seen_on_person=False, seen_min_weight=None, layer_off_person=False, layer_through=False,
-                    layer_seen_inside=False, layer_depth_match=False,
+                    layer_seen_inside=False, layer_depth_match=False, seen_trained_only=False,
                     random_background=False,
                     avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
@@ -213,6 +223,7 @@ class Stage1Config(StageSettings):
         d.setdefault("layer_through", False)  # recorded before the layer's fill told the body through it from cloth
         d.setdefault("layer_seen_inside", False)  # recorded before layer Gaussians seen from inside were unseen
         d.setdefault("layer_depth_match", False)  # recorded before the layer's front and back matched its sides' depth
+        d.setdefault("seen_trained_only", False)  # recorded before seen Gaussians training never coloured were unseen
         d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
         d.setdefault("lambda_normal_prior", 0.0)  # recorded before frames without normal maps had a normal prior
         d.setdefault("lambda_layer_cover", 0.0)  # recorded before the layer's cover prior existed

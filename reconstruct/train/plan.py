@@ -13,7 +13,7 @@ import torch
 from .config import Stage1Config, StageSettings
 from ..appearance.wrap_fill import grazing_rule_for
 from ..avatar.layer_depth import match_layer_depth
-from .seen_recount import keep_seen_on_person, person_coverage
+from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, layer_reached, layer_through,
                           layer_training_views)
@@ -80,8 +80,8 @@ class Stage1Plan(StagePlan):
                 *state.model.layer_param_groups(c.lr_features, c.lr_decoder, c.lr_layer_skinning)]  # [] without a layer
 
     def finish(self, context: StepContext) -> str | None:
-        """The seen flags are recounted on the person (``seen_on_person``, train/seen_recount.py),
-        then the never-seen Gaussians take the wrap-around fill's colours and, on a garment layer, the
+        """The seen flags are recounted on the person (``seen_on_person``, train/seen_recount.py) and
+        those whose colour training never touched are unmarked (``seen_trained_only``), then the never-seen Gaussians take the wrap-around fill's colours and, on a garment layer, the
         trained cloth's opacity at their height (``fill_unseen``). Last, a garment layer's front and
         back are moved in depth as far as training pulled its sides in (``layer_depth_match``)."""
         state, notes, s = context.state, [], self.settings
@@ -97,6 +97,10 @@ class Stage1Plan(StagePlan):
             if k.added:
                 notes.append(f"{k.added} Gaussians the images blended into the person (no first hit) are seen")
             not_sources = k.blended_only  # seen by their blend weight alone: no colour source
+        if s.seen_trained_only:
+            n = unsee_untrained(state)
+            if n:
+                notes.append(f"{n} seen Gaussians whose colour training never touched are unseen")
         if s.fill_unseen:
             # the body past the frame's edges: the fills give it the colours at the cut
             state.cut_colors = cut_colors_of(state, context.data)

@@ -167,6 +167,31 @@ def blended_on_person(coverage: PersonCoverage, min_weight: float, *, min_share:
     return (coverage.weight_max >= min_weight) & (coverage.weight >= min_share * coverage.total)
 
 
+def untrained_colours(model) -> torch.Tensor | None:
+    """(N,) bool: the Gaussians whose colour no training step touched -- their per-Gaussian colour
+    residual is still exactly its initial zero (any colour gradient moves it: Adam's first step is
+    about the learning rate) -- so that their colour is the decoder's guess for their texel. None
+    for a model without the residual (``AvatarConfig.color_residual`` off: nothing tells)."""
+    residual = getattr(model.decoder, "color_residual", None)
+    if residual is None:
+        return None
+    return (residual.detach() == 0).all(1).cpu()
+
+
+def unsee_untrained(state: AvatarState) -> int:
+    """Unmark the seen Gaussians whose colour training never touched (``untrained_colours``): the
+    final avatar's blend weights can mark a Gaussian seen that no step of training coloured (on a
+    photo's back, facing the camera by 118 degrees, behind the front it blends through), and as seen
+    it kept the decoder's grey-mauve guess, and its ring with it. Call it before the fill, which sets
+    the residuals it fills. Returns how many were unmarked."""
+    untrained = untrained_colours(state.model)
+    if untrained is None:
+        return 0
+    drop = state.seen & untrained.to(state.seen.device)
+    state.seen &= ~drop
+    return int(drop.sum())
+
+
 def keep_seen_on_person(state: AvatarState, data: TrainingData, *, hit_threshold: float = 0.5,
                         min_weight: float | None = None, coverage: PersonCoverage | None = None) -> SeenRecount:
     """Unmark the seen Gaussians that are the first hit of no person pixel in any training frame;
