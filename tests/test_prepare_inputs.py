@@ -835,3 +835,31 @@ def test_a_photo_whose_exif_cannot_be_read_keeps_its_stored_pixels(tmp_path, mon
     monkeypatch.setattr(ImageOps, "exif_transpose", broken)
     frame = read_input(tmp_path / "photo.png", max_side=None)[0].frames[0]
     assert np.array_equal(frame, stored)
+
+
+def test_the_report_image_marks_an_edge_that_cuts_the_person_off(tmp_path):
+    """``prepare_report.png``: an edge of the frame that cuts the person off is a red line across the
+    image panels, and the first panel's title names it; without one, no red line."""
+    from PIL import Image
+
+    from reconstruct.data.prepare.lean import SideView
+    from reconstruct.data.prepare.report_image import ReportFrame, write_report_image
+
+    h, w = 120, 90
+    img = np.full((h, w, 3), 200, np.uint8)
+    mask = np.zeros((h, w), np.float32)
+    mask[20:, 30:60] = 1.0  # the person runs off the bottom
+    side = SideView(np.zeros((40, 40), bool), 0.0, (20.0, 5.0), (20.0, 35.0))
+
+    def reds(cut):
+        f = ReportFrame("photo.jpg", img, mask, None, mask > 0.5, 0.9, side, cut)
+        out = np.asarray(Image.open(write_report_image(tmp_path / "r.png", [f], "t")).convert("RGB")).astype(int)
+        out = out[:, : out.shape[1] * 3 // 4]  # the image panels (the side view draws its lean in red)
+        return (out[..., 0] > 180) & (out[..., 1] < 80) & (out[..., 2] < 80), out.shape
+
+    red, shape = reds({"bottom": float(h)})
+    none, _ = reds({})
+    assert not none.any()
+    rows = np.flatnonzero(red.any(1))
+    assert red.sum() > 50 and rows.min() > shape[0] // 2  # low in the figure, along the bottom edge
+    assert red.any(0).sum() > shape[1] // 2  # across the three image panels

@@ -133,7 +133,7 @@ def apply_crop(images: np.ndarray, crop: Crop, *, resample: str = "lanczos") -> 
 EDGES = ("top", "bottom", "left", "right")
 
 
-def _edge_lines(crop: Crop, source_size: tuple[int, int]) -> dict[str, tuple[float, int]]:
+def edge_lines(crop: Crop, source_size: tuple[int, int]) -> dict[str, tuple[float, int]]:
     """{edge: (position, inward)}: each edge of the source frame in crop pixels (a row for the top
     and the bottom, a column for the sides), and the side of it that lies inside the frame (+1:
     larger coordinates)."""
@@ -152,7 +152,7 @@ def edges_cut(mask: np.ndarray, crop: Crop, source_size: tuple[int, int], *, rea
     padding cuts nothing. ``source_size``: the frame's (width, height) in source pixels."""
     m = np.asarray(mask) > 0.5
     H, W = m.shape
-    lines = _edge_lines(crop, source_size)
+    lines = edge_lines(crop, source_size)
     out = []
     for name in EDGES:
         at, inward = lines[name]
@@ -173,7 +173,7 @@ def near_edges(points: np.ndarray, crop: Crop, source_size: tuple[int, int], edg
     puts there for a person the edge cuts off is a guess (the knees of a photo cut at the knees
     come back at the frame's bottom row, with some confidence)."""
     p = np.asarray(points, np.float64).reshape(-1, 2)
-    lines = _edge_lines(crop, source_size)
+    lines = edge_lines(crop, source_size)
     out = np.zeros(len(p), bool)
     for name in edges:
         at, inward = lines[name]

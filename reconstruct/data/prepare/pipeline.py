@@ -26,7 +26,7 @@ import numpy as np
 
 from ..scene import BodySpec, Frame, Scene
 from ..scene_io import write_scene
-from .crop import EDGES, Crop, apply_crop, edges_cut, near_edges, person_crop
+from .crop import EDGES, Crop, apply_crop, edge_lines, edges_cut, near_edges, person_crop
 from .detector import Detections, PersonDetector
 from .fit import FIT_BONES, CameraGuess, FitConfig, fit_poses, measure_fit
 from .inputs import InputError, input_kind, read_input
@@ -360,9 +360,10 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
             title = (f"{video_path.name}: " + ("" if track is None else f"person {track.index} of {track.count}, ")
                      + f"mean IoU {report['mean_silhouette_iou']:.3f}, height {report['body_height_m']:.2f} m, "
                      f"side lean {report['side_lean_deg']['mean']:+.1f} deg")
+            lines = edge_lines(cr, (W0, H0))
             rows = [ReportFrame(kept_names[k], frames[keep][k], kept.masks[k],
                                 None if kept.raw_masks is None else kept.raw_masks[k], fit.fit_masks[k],
-                                float(fit.iou[k]), sides[k]) for k in shown]
+                                float(fit.iou[k]), sides[k], {e: lines[e][0] for e in cut[k]}) for k in shown]
             if user is None:
                 write_report_image(inner / REPORT_IMAGE, rows, title)
             else:

@@ -1,11 +1,12 @@
 """``SCENE/prepare_report.png``: what ``prepare`` did, for a few frames: the input crop, the person mask
 (green: added by the refinement, red: removed by it), the fitted body over the image, and the fitted
-body seen from the side with its lean."""
+body seen from the side with its lean. An edge of the frame that cuts the person off is a red line
+across the image panels."""
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,9 @@ class ReportFrame:
     fitted: np.ndarray  # (H,W) bool fitted body silhouette
     iou: float
     side: SideView
+    # the edges of the frame that cut the person off in this frame: {edge: its position in the crop's
+    # pixels} (a row for the top and the bottom, a column for the sides; ``crop.edge_lines``)
+    cut: dict[str, float] = field(default_factory=dict)
 
 
 def pick_frames(count: int, most: int = 4) -> list[int]:
@@ -58,13 +62,22 @@ def write_report_image(path: str | os.PathLike, frames: list[ReportFrame], title
         edge = m & ~_erode(m)
         fit[edge] = [1.0, 1.0, 0.0]
         side = np.where(f.side.silhouette[..., None], np.array([0.2, 0.5, 1.0]), np.array([1.0, 1.0, 1.0]))
-        panels = [(img, f"{f.name}"), (over, mask_title),
+        name = f.name + (f" (cut off: {', '.join(f.cut)})" if f.cut else "")
+        panels = [(img, name), (over, mask_title),
                   (fit, f"fitted body, IoU {f.iou:.3f}"), (side, f"side view, lean {f.side.lean_deg:+.1f} deg")]
         for c, (im, label) in enumerate(panels):
             ax = axes[r, c]
             ax.imshow(np.clip(im, 0, 1))
             ax.set_title(label, fontsize=9)
             ax.axis("off")
+        h, w = img.shape[:2]
+        for c in range(3):  # the cutting edges in red on the image panels: what lies past them is guessed
+            for e, at in f.cut.items():
+                at = float(np.clip(at, 0, (h if e in ("top", "bottom") else w) - 1))
+                if e in ("top", "bottom"):
+                    axes[r, c].axhline(at, color="r", lw=2.5)
+                else:
+                    axes[r, c].axvline(at, color="r", lw=2.5)
         ax = axes[r, 3]
         ax.plot([f.side.head[0], f.side.feet[0]], [f.side.head[1], f.side.feet[1]], "r-", lw=1.5)
         ax.axvline(f.side.feet[0], color="0.6", lw=0.8, ls="--")
