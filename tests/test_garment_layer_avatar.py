@@ -832,8 +832,9 @@ def test_the_finish_unsees_layer_gaussians_seen_from_inside(tiny_scene, tiny_con
     N = None
     counts = {}
     for on in (True, False):
-        # the recount on the person is off: it would drop these untrained back Gaussians itself
-        cfg = dataclasses.replace(tiny_config, layer_seen_inside=on, seen_on_person=False)
+        # the recount on the person and the untrained rule are off: either would drop these
+        # untrained back Gaussians itself
+        cfg = dataclasses.replace(tiny_config, layer_seen_inside=on, seen_on_person=False, seen_trained_only=False)
         t = _trainer(tiny_scene, cfg, _layer(body))
         N = t.model.num_body
         back = torch.zeros_like(t.state.seen)
