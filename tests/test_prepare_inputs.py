@@ -431,6 +431,15 @@ def test_landmarks_at_an_edge_that_cuts_the_person_off():
     np.testing.assert_array_equal(near_edges(pts, cr, (600, 900), ["bottom", "left"], 10.0),
                                   [False, False, True, True, True])
     assert not near_edges(pts, cr, (600, 900), [], 10.0).any()
+    # held straight in the fit: past the edge always, at it only with the detector unsure
+    from reconstruct.data.prepare.crop import held_landmarks
+
+    vis = np.array([0.9, 0.9, 0.9, 0.9, 0.9])
+    np.testing.assert_array_equal(held_landmarks(pts, vis, cr, (600, 900), ["bottom"], 10.0, 0.5),
+                                  [False, False, False, True, False])
+    vis[2] = 0.3  # 9 px above the edge, unsure: a guess
+    np.testing.assert_array_equal(held_landmarks(pts, vis, cr, (600, 900), ["bottom"], 10.0, 0.5),
+                                  [False, False, True, True, False])
 
 
 def test_crop_camera_reprojects_onto_the_same_pixels():

@@ -57,8 +57,9 @@ class Detections:
     info: dict = field(default_factory=dict)
     raw_masks: np.ndarray | None = None  # (T,H,W) the segmenter's masks before refinement, if refined
     refine_used: np.ndarray | None = None  # (T,) where the refinement was kept
-    # (T,33) bool or None: landmarks at or past an edge of the frame that cuts the person off (the
-    # pipeline sets their visibility to 0); the fit holds the limbs that end there straight
+    # (T,33) bool or None: landmarks an edge of the frame cuts off (past it, or at it with the
+    # detector unsure; the pipeline sets the visibility of every landmark at such an edge to 0): the
+    # fit holds the limbs that end there straight
     cut: np.ndarray | None = None
 
     def __post_init__(self) -> None:

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..scene import BodySpec, Frame, Scene
 from ..scene_io import write_scene
-from .crop import EDGES, Crop, apply_crop, edge_lines, edges_cut, near_edges, person_crop
+from .crop import EDGES, Crop, apply_crop, edge_lines, edges_cut, held_landmarks, near_edges, person_crop
 from .detector import Detections, PersonDetector
 from .fit import FIT_BONES, CameraGuess, FitConfig, fit_poses, measure_fit
 from .inputs import InputError, input_kind, read_input
@@ -51,6 +51,9 @@ CROP_MARGIN = 0.08
 # row (confidence 0.23-0.30) and pulled the thighs short, the body 1.40 m tall against 1.56 m fitted to
 # the whole photo (1.48 m without them)
 EDGE_LANDMARK_MARGIN = 0.02
+# a landmark left out at a cutting edge but inside the image holds its limb straight in the fit
+# only when the detector's confidence in it is below this (past the edge it always does)
+HELD_BELOW_VISIBILITY = 0.5
 DEFAULT_PHENOTYPE = {k: 0.5 for k in ("gender", "age", "muscle", "weight", "height", "proportions")}
 
 
@@ -280,8 +283,12 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
         if edges:
             near = near_edges(kept.keypoints[k], cr, (W0, H0), edges, EDGE_LANDMARK_MARGIN * max(W, H))
             at_edge += int((near & (kept.visibility[k] > 0)).sum())
+            # the fit holds the limbs that end at these straight (``FitConfig.w_cut``): those past
+            # the edge, or at it with the detector unsure (knees of a photo cut at the knees put on
+            # its bottom row at 0.22-0.29); not a foot the photo shows at its edge with confidence
+            kept.cut[k] = held_landmarks(kept.keypoints[k], kept.visibility[k], cr, (W0, H0), edges,
+                                         EDGE_LANDMARK_MARGIN * max(W, H), HELD_BELOW_VISIBILITY)
             kept.visibility[k, near] = 0.0
-            kept.cut[k] = near
     base_spec = BodySpec.anny(dict(phenotype or DEFAULT_PHENOTYPE), 5.0)
     body = base_spec.build()
     shape = ShapeBasis.build(dict(base_spec.params), 5.0, base_body=body,
