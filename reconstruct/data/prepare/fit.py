@@ -48,7 +48,12 @@ from .silhouette import mesh_silhouette
 FIT_BONES = ("spine03", "spine01", "neck01", "head", "upperarm01.L", "upperarm01.R", "lowerarm01.L",
              "lowerarm01.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R")
 # per-bone prior weight on (x, y, z) of the axis-angle (world-aligned: x is the hinge of knees/elbows)
+# The thighs' turn about the vertical (z: about their own axis while they hang) weighs 40: a straight
+# leg's keypoints do not see it, and at 1 it drifted to 0.4-1.0 rad on five of the seven photos of
+# shared/real (a knee turned 58 degrees out on the grey-skirt photo), so that the photo's front of
+# the thigh was fitted onto its side; at 40 it stays within 0.14 rad (docs/prepare.md)
 _PRIOR = {"spine03": (40, 40, 40), "spine01": (40, 40, 40), "neck01": (2, 2, 2), "head": (2, 2, 2),
+          "upperleg01.L": (1, 1, 40), "upperleg01.R": (1, 1, 40),
           "lowerarm01.L": (0.5, 4, 4), "lowerarm01.R": (0.5, 4, 4),
           "lowerleg01.L": (0.5, 4, 4), "lowerleg01.R": (0.5, 4, 4)}
 # hinge direction: knees bend with +x, elbows with -x (see synthetic/motion.py)
