@@ -22,12 +22,22 @@ import numpy as np
 
 from ..body.parts import PART_INDEX, PART_NAMES
 
+EDGES = ("left", "right", "top", "bottom")
 # the body's chains of parts: a group of one chain per side (limbs) or one chain (the trunk)
 CHAINS: tuple[tuple[tuple[str, ...], ...], ...] = (
     (("thigh.L", "shin.L", "foot.L"), ("thigh.R", "shin.R", "foot.R")),
     (("upperarm.L", "lowerarm.L", "hand.L"), ("upperarm.R", "lowerarm.R", "hand.R")),
     (("torso", "neck", "head"),),
 )
+
+
+def _near_edges(x: np.ndarray, y: np.ndarray, w: int, h: int, edges, edge_px: float) -> np.ndarray:
+    """Where (x, y) (pixel coordinates; any shapes that broadcast) lie within ``edge_px`` of one of
+    the ``edges`` of a ``w`` x ``h`` image (or past it)."""
+    near = np.zeros(np.broadcast(x, y).shape, bool)
+    for e in edges:
+        near |= {"left": x < edge_px, "right": x >= w - edge_px, "top": y < edge_px, "bottom": y >= h - edge_px}[e]
+    return near
 
 
 @dataclass
@@ -51,18 +61,14 @@ class FrameView:
         (bool) project."""
         h, w = self.mask.shape
         u, v, f = self.uv[:, 0], self.uv[:, 1], self.in_front & which
-        out = {"left": u < 0, "right": u >= w, "top": v < 0, "bottom": v >= h}
-        return [e for e, past in out.items() if bool((past & f).any())]
+        return [e for e in EDGES if bool((_near_edges(u, v, w, h, (e,), 0.0) & f).any())]
 
     def edge_samples(self, which: np.ndarray, edges: list[str], edge_px: float) -> np.ndarray:
         """(S,3): the image's colours under those of ``which`` that project into it within
         ``edge_px`` of one of ``edges``, where the mask shows the person."""
         h, w = self.mask.shape
         u, v = self.uv[:, 0], self.uv[:, 1]
-        near = np.zeros(len(u), bool)
-        for e in edges:
-            near |= {"left": u < edge_px, "right": u >= w - edge_px, "top": v < edge_px, "bottom": v >= h - edge_px}[e]
-        k = which & self.inside() & near
+        k = which & self.inside() & _near_edges(u, v, w, h, edges, edge_px)
         x, y = np.floor(u[k]).astype(np.int64), np.floor(v[k]).astype(np.int64)
         on = self.mask[y, x] > 0.5
         return np.asarray(self.image, np.float64)[y[on], x[on]]
@@ -70,10 +76,7 @@ class FrameView:
     def person_along(self, edges: list[str], edge_px: float) -> np.ndarray:
         """(S,3): the colours of the person's pixels within ``edge_px`` of ``edges``."""
         h, w = self.mask.shape
-        ys, xs = np.mgrid[0:h, 0:w]
-        near = np.zeros((h, w), bool)
-        for e in edges:
-            near |= {"left": xs < edge_px, "right": xs >= w - edge_px, "top": ys < edge_px, "bottom": ys >= h - edge_px}[e]
+        near = _near_edges(np.arange(w)[None, :], np.arange(h)[:, None], w, h, edges, edge_px)
         return np.asarray(self.image, np.float64)[near & (self.mask > 0.5)]
 
 

@@ -95,10 +95,11 @@ class FitConfig:
     w_legs: float = 0.2  # keeps the legs under the hips where depth is ambiguous
     # holds a limb bone at its rest rotation (a straight limb) in a frame whose edge cuts off the
     # landmark at its far end (``Detections.cut``): nothing but the priors sees it, and at
-    # ``w_prior`` they let it drift. A photo cut at the knees with room above the head: the thigh
-    # turned 105 degrees about its own axis in the keypoint fit, and the silhouette then bent the
-    # shin sideways at the knee by 63 degrees (seen from the side, a leg kicked back: lean -10.9
-    # degrees, against +1.2 held). The spine's prior is 40 times ``w_prior``; this is 50
+    # ``w_prior`` they let it drift. A photo cut at the knees with room above the head: the silhouette
+    # bent a shin whose ankle was cut off sideways at the knee by 63 degrees (seen from the side, a
+    # leg kicked back: lean -10.9 degrees, against +0.6 held). The spine's prior is 40 times
+    # ``w_prior``; this is 50. (That thigh, its knee in view, also turned 105 degrees about its own
+    # axis: the thighs' prior on that turn, ``_PRIOR``)
     w_cut: float = 0.01
     upright: str = "auto"  # auto (from how much the body turns and moves), on, off
     stature_m: float | None = None  # the person's height if known (else a population prior)
