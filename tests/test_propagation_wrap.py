@@ -159,6 +159,46 @@ def test_a_front_only_layer_is_filled_by_rows():
     np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
 
 
+def test_a_front_only_layers_rows_read_the_sources_before_erosion():
+    """A photo's cloth is speckled: light first hits (sheen) between dark folds. The trusted flags,
+    eroded, keep the dark folds' middles only; the rows' medians are read on ``row_seen`` (the
+    flags before erosion) and the back takes the cloth's colour, not the folds' (the long-skirt
+    photo's navy skirt came out black behind). Not in rows whose first hits cover under
+    ``row_seen_share`` of the front: there they are what shows through the layer."""
+    R, C = 30, 92
+    NAVY, FOLD = np.array([0.05, 0.1, 0.3]), np.array([0.01, 0.01, 0.03])
+    th = 2 * np.pi * np.arange(C) / C - np.pi
+    z = 1.0 - 0.014 * np.arange(R)
+    pos = np.stack([np.broadcast_to(0.25 * np.sin(th), (R, C)), np.broadcast_to(-0.25 * np.cos(th), (R, C)),
+                    np.broadcast_to(z[:, None], (R, C))], -1).reshape(-1, 3)
+    front = np.broadcast_to(np.abs(np.degrees(th)) <= 85, (R, C))
+    fold = np.broadcast_to((np.arange(C) // 5) % 3 == 0, (R, C))  # a third of the columns, in 5-wide folds
+    col = np.where(fold[..., None], FOLD, NAVY).reshape(-1, 3)
+    seen = front.reshape(-1)
+    trusted = (front & fold & np.broadcast_to((np.arange(C) % 5 == 2), (R, C))).reshape(-1)  # the folds' middles
+    parts = np.full(R * C, GARMENT_PART)
+    cfg = WrapFillConfig(smooth_sweeps=0)
+    out = wrap_fill_colors(pos, parts, trusted, col, None, cfg, layer_grid=(R, C, 1), row_seen=seen).numpy()
+    old = wrap_fill_colors(pos, parts, trusted, col, None, cfg, layer_grid=(R, C, 1)).numpy()
+    back = ~seen
+    np.testing.assert_allclose(out[back], np.tile(NAVY, (back.sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(old[back], np.tile(FOLD, (back.sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(out[trusted], col[trusted], atol=1e-6)  # the trusted keep their own
+    # rows below the front hem: a few first hits on the layer show the trousers through it. Under a
+    # third of the row's front, they are not read (the eroded flags are): no trousers round the back
+    TROUSERS = np.array([0.3, 0.3, 0.3])
+    low = np.arange(R * C) // C >= R - 5
+    strip = low & (np.abs(np.degrees(np.tile(th, R))) < 15)  # 11 of the row's 43 in front
+    col2 = col.copy()
+    col2[strip] = TROUSERS
+    seen2 = (seen & ~low) | strip
+    trusted2 = trusted & ~low
+    fill = lambda share: wrap_fill_colors(pos, parts, trusted2, col2, None, WrapFillConfig(  # noqa: E731
+        smooth_sweeps=0, row_seen_share=share), layer_grid=(R, C, 1), row_seen=seen2).numpy()
+    assert np.abs(fill(1 / 3)[low & back] - TROUSERS).max(1).min() > 0.2
+    np.testing.assert_allclose(fill(0.0)[low & back], np.tile(TROUSERS, ((low & back).sum(), 1)), atol=1e-6)
+
+
 def test_a_front_only_layers_rows_are_smoothed_where_alike():
     """Shading from row to row (within the palette tolerance) is averaged down the layer; stripes
     (further apart than it) are not."""

@@ -172,6 +172,15 @@ class WrapFillConfig:
     # one-frame photo: 25.32 -> 26.25 dB unseen). 0: the band, the mirror and the median as for
     # the body's parts
     layer_profile_rows: int = 5
+    # ... each row read on the seen flags before erosion (``wrap_fill_colors(row_seen=...)``) where
+    # they cover at least this share of the row's Gaussians in front of the layer's centre, on the
+    # eroded flags elsewhere. A row the camera saw as cloth over less of its front is mostly not
+    # cloth in the image -- the layer reaching past an open coat's edges or below its front hem --
+    # and its few first hits are what shows through: on the green-coat photo the layer's lowest 8
+    # rows had 10-12 sources of 45 in front, in the trousers' colour (0.07), and read before
+    # erosion they carried a grey band round the coat's back hem (0.27 -> 0.18 rendered). The
+    # long-skirt photo's lower rows have 21-39 of 45
+    row_seen_share: float = 1 / 3
     # parts whose front is not continued by mirroring (step 3 off): the head (the face is the
     # front's own; the back is the hair of the crown and sides) and the feet (the toe cap)
     no_mirror_parts: tuple[str, ...] = ("head", "foot.L", "foot.R")
@@ -414,7 +423,7 @@ def reliable_seen(seen: np.ndarray, normals: np.ndarray | None, parts: np.ndarra
 def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | None = None,
                      config: WrapFillConfig = WrapFillConfig(), normals=None, no_mirror=None,
                      under_layer=None, layer_grid: tuple[int, int, int] | None = None,
-                     hair_seen=None, surface_normals=None, cut_colors=None) -> torch.Tensor:
+                     hair_seen=None, surface_normals=None, cut_colors=None, row_seen=None) -> torch.Tensor:
     """(N,3) float32 colours: the reliably seen Gaussians' own, the others (unseen, or seen only
     at grazing incidence when ``normals`` are given) filled as described in the module docstring.
     ``positions``, ``normals``: canonical (N,3); ``parts``: (N,) body-part indices; ``seen``: (N,)
@@ -431,7 +440,14 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     ``hair_seen``: (N,) bool, seen flags eroded less than ``seen`` (1 texel against 2): a head seen
     from the front only reads its hair on them (``hair.py``). The hair framing a face is a ring a
     few texels wide, and erosion took most of it (the red-dress photo's hair rule stood down and the
-    back of her head came out bald). ``surface_normals``: (N,3) canonical normals of the surface each
+    back of her head came out bald). ``row_seen``: (N,) bool, the seen flags before any erosion: a
+    garment layer filled by rows (a photo's, ``layer_profile_rows``) reads each row's seen cloth on
+    them. A photo's first hits on the cloth are speckled, the light ones (sheen, the matte's
+    fringe) most, and erosion by 2 texels kept the dark folds between them: the long-skirt photo's
+    lower rows kept 5-25 of their 25-42 seen front Gaussians, their blue at half the seen ones'
+    median, and the back of its navy skirt rendered near black, (0.012, 0.008, 0.024) at the knees
+    against the front's (0.031, 0.051, 0.106); read before erosion, (0.024, 0.027, 0.075).
+    ``surface_normals``: (N,3) canonical normals of the surface each
     Gaussian sits on; given, a seen Gaussian behind its part's centre counts as a view of the back
     (``behind_share``) only where its normal faces the back (+Y). A torso's upper chest and shoulders
     face the front from behind the torso's mean depth (its belly lies in front): on a coat photo
@@ -447,6 +463,11 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     parts = np.asarray(parts)
     seen = reliable_seen(_as_np(seen, bool), None if normals is None else _as_np(normals), parts, cfg)
     hair_seen = None if hair_seen is None else _as_np(hair_seen, bool) | seen
+    if row_seen is not None:
+        row_seen = _as_np(row_seen, bool)
+        if row_seen.shape != seen.shape:
+            raise ValueError(f"wrap_fill_colors: row_seen must have shape {seen.shape}, found {row_seen.shape}")
+        row_seen = reliable_seen(row_seen, None if normals is None else _as_np(normals), parts, cfg) | seen
     surf = None if surface_normals is None else _as_np(surface_normals)
     if surf is not None and surf.shape != (len(pos), 3):
         raise ValueError(f"wrap_fill_colors: surface_normals must have shape ({len(pos)}, 3), found {surf.shape}")
@@ -583,6 +604,16 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         if fills_by_rows:
             row_of = lambda i: (i - members[0]) // layer_grid[1]  # noqa: E731
             if by_rows:
+                if row_seen is not None:  # rows the camera saw as cloth read on the flags before erosion
+                    row_m = row_of(members)
+                    front_n = np.bincount(row_m[pos[members, 1] < centre_y], minlength=layer_grid[0])
+                    loose_n = np.bincount(row_m[row_seen[members]], minlength=layer_grid[0])
+                    cloth_row = loose_n >= np.maximum(1.0, cfg.row_seen_share * front_n)
+                    src = members[np.where(cloth_row[row_m], row_seen[members], seen[members])]
+                    src_pos = pos[src]
+                    pool = _on_both_sides(src_pos, col[src], pos[members, 0].mean(), cfg)
+                    if pool.sum() < cfg.k:
+                        pool[:] = True
                 rows_s, pos_s, col_s = row_of(src[pool]), src_pos[pool], col[src][pool]
                 low = _row_median(row_of(todo), pos[todo], rows_s, pos_s, col_s, rows_s, pos_s, col_s, len(src))
                 low = _row_profile(row_of(todo), low, cfg.layer_profile_rows, cfg.palette_tolerance)

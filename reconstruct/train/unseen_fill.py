@@ -93,7 +93,8 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
                               normals=model.base_normals.cpu() if grazing_rule else None, no_mirror=state.edits.redone,
                               under_layer=model_body_under_layer(model), layer_grid=model.layer_grid(),
                               hair_seen=torch.as_tensor(erode(sources.numpy(), neighbours, min(erosion, 1))),
-                              surface_normals=model.base_normals.cpu(), cut_colors=state.cut_colors)
+                              surface_normals=model.base_normals.cpu(), cut_colors=state.cut_colors,
+                              row_seen=sources)
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
     if ring_trained is not None:
         ring_trained = torch.as_tensor(ring_trained, dtype=torch.bool).cpu()
