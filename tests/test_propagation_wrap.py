@@ -1095,3 +1095,37 @@ def test_a_limb_seen_far_less_than_its_twin_takes_the_twins_colours():
     np.testing.assert_allclose(out[len(th):][strip], np.tile(WHITE, (strip.sum(), 1)), atol=1e-6)  # its seen front stays
     old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0, twin_share=0.0)).numpy()
     assert (np.abs(old[back_r] - WHITE).max(1) < 0.05).mean() > 0.9
+
+
+def test_hair_falling_over_a_photos_shoulders_is_not_carried_round_the_back():
+    """Long hair falls in front of both shoulders of a red dress seen from the front only. The
+    torso's seen Gaussians in the hair's colours (the head's hair, lit and shadowed strands) are no
+    source of its back, which takes the dress's red; the hair stays on the front. Without the rule
+    the band at the shoulders' height is hair on both sides and the upper back turns brown (the
+    red-dress photo)."""
+    head, _, head_seen, head_truth = front_only_head()
+    torso, th = cylinder(radius=0.15, height=0.5, n_theta=96, n_z=100, z0=1.0)
+    deg = np.degrees(th)
+    front = np.abs(deg) <= 85
+    strands = (torso[:, 2] > 1.32) & (np.abs(deg) > 25)  # both sides of the upper front
+    col_t = np.tile(RED, (len(torso), 1))
+    lit = (np.arange(len(torso)) % 3) == 0
+    col_t[strands] = np.where(lit[strands, None], HAIR + 0.08, HAIR)  # two shades of the hair
+    pos = np.r_[head, torso]
+    parts = np.r_[np.full(len(head), PART_INDEX["head"]), np.full(len(torso), PART_INDEX["torso"])]
+    seen = np.r_[head_seen, front]
+    col = np.r_[np.where(head_seen[:, None], head_truth, 0.5), np.where(front[:, None], col_t, 0.5)]
+    back = np.r_[np.zeros(len(head), bool), ~front]
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    assert np.abs(out[back] - RED).max(1).max() < 0.05
+    np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)  # the front keeps its hair
+    off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(hair_over_parts=())).numpy()
+    upper_back = back & (pos[:, 2] > 1.35)
+    assert np.abs(off[upper_back] - HAIR).max(1).mean() < 0.1
+    # a brown dress under brown hair, with a red hem: the hair's colours are the dress's own and stay
+    # sources; the back is brown, not the red that is left without them
+    dress = np.where((torso[:, 2] < 1.12)[:, None], RED, HAIR + 0.04)
+    brown = np.where(front[:, None], np.where(strands[:, None], col_t, dress), 0.5)
+    same = wrap_fill_colors(pos, parts, seen, np.r_[col[:len(head)], brown], None).numpy()
+    mid_back = back & (pos[:, 2] > 1.2) & (pos[:, 2] < 1.3)
+    assert np.abs(same[mid_back] - HAIR).max(1).max() < 0.1

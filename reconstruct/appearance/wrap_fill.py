@@ -42,6 +42,8 @@ positions (the body faces -Y, +Z up):
    remove single-texel noise from the median choices. Before them, on a part the video never saw
    behind its centre, whose back has no evidence of a pattern of its own, each unseen Gaussian
    takes the per-channel median of the ``front_only_median`` nearest Gaussians of its part.
+   Hair a photo shows fallen over the shoulders is the front's own: on such parts the seen
+   Gaussians in the head's hair colours are no source (``hair_over_parts``).
 
 A part with few seen Gaussians (under ``twin_below``, or under ``twin_share`` of its twin's)
 borrows from its left/right twin (mirrored in x); one left with fewer than ``k`` takes the
@@ -218,6 +220,19 @@ class WrapFillConfig:
     # middle voted for her shadowed hair, and the back of her head came out skin-coloured
     hair_skin_from_hands: bool = True
     hair_skin_parts: tuple[str, ...] = ("hand.L", "hand.R")
+    # parts over which long hair falls in front (a photo): never seen behind their centre, their
+    # seen Gaussians in the colours of the hair the head shows (within ``palette_tolerance`` in
+    # every channel of one of its hair Gaussians, ``hair.hair_sources``) are no colour source of
+    # their back -- but for those in the part's own median colour too (a brown coat under brown
+    # hair; the red dress's red, which her hair's rim shows), and unless fewer than ``k`` would be
+    # left; nor are they in the front-only median (step 4a). The red-dress photo's blonde hair over
+    # both shoulders was carried round her upper back as a brown smear and a dark spot, and one
+    # sleeve's back came out maroon (now left out: 269 of the torso's 793 trusted Gaussians, 62 of
+    # 175 and 55 of 230 on the upper arms). The front keeps its hair. On the green-coat photo the
+    # rule leaves out 558 of the torso's 1,151, its black hair's colours and the coat's darkest
+    # shade with them; its back came out nearer the front's green (0.310 0.314 0.251 -> 0.325 0.329
+    # 0.267 against 0.329 0.329 0.267) and less blotched
+    hair_over_parts: tuple[str, ...] = ("torso", "neck", "upperarm.L", "upperarm.R")
     # parts whose band, when never seen behind their centre, leaves out the seen edge within
     # ``neckline_reach`` metres of the neck: over the top of a torso it runs along the neckline (a
     # V-neck's skin, a shirt between an open jacket's lapels), the front's own, and carried round
@@ -390,6 +405,34 @@ def _layer_row_spacing(layer_pos: np.ndarray, rows: int) -> float | None:
     return step if step > 0 else None
 
 
+def _front_hair_palette(pos: np.ndarray, col: np.ndarray, parts: np.ndarray, seen: np.ndarray,
+                        skin: np.ndarray | None, cfg: WrapFillConfig) -> np.ndarray | None:
+    """(H,3) the colours of the hair a head seen from the front shows round its face
+    (``hair.hair_sources`` on its seen Gaussians: strands lit and shadowed alike), or None: no
+    head, no hair of its own colour, or a head seen behind its centre (a video that turned)."""
+    if "head" not in PART_INDEX or not cfg.hair_over_parts:
+        return None
+    members = np.flatnonzero(parts == PART_INDEX["head"])
+    src = members[seen[members]]
+    if len(src) < cfg.k:
+        return None
+    centre = pos[members].mean(0)
+    if (pos[src, 1] > centre[1]).sum() >= max(cfg.k, cfg.behind_share * (pos[members, 1] > centre[1]).sum()):
+        return None
+    hair = hair_sources(pos[src], col[src], centre[0], contrast=cfg.hair_contrast, min_share=cfg.hair_min_share,
+                        k=cfg.k, skin=skin)
+    return col[src][hair] if hair.sum() >= cfg.k else None
+
+
+def _hair_coloured(src_col: np.ndarray, palette: np.ndarray, cfg: WrapFillConfig) -> np.ndarray:
+    """(M,) bool: the sources within ``palette_tolerance`` in every channel of some colour of the
+    hair's ``palette`` and not of the part's own median colour (``hair_over_parts``); none when
+    fewer than ``k`` sources would be left."""
+    like = cKDTree(palette).query(src_col, p=np.inf)[0] <= cfg.palette_tolerance
+    like &= np.abs(src_col - np.median(src_col, 0)).max(1) > cfg.palette_tolerance
+    return like if (~like).sum() >= cfg.k else np.zeros(len(src_col), bool)
+
+
 def _on_both_sides(band_pos: np.ndarray, band_col: np.ndarray, centre_x: float, cfg: WrapFillConfig) -> np.ndarray:
     left = band_pos[:, 0] < centre_x
     keep = np.zeros(len(band_pos), bool)
@@ -491,6 +534,9 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     if cfg.hair_skin_from_hands:
         hands = np.isin(parts, [PART_INDEX[n] for n in cfg.hair_skin_parts if n in PART_INDEX]) & seen
         skin = skin_reference(col[hands])
+    # the colours of the hair a photo's head shows, for the parts it falls over (``hair_over_parts``)
+    hair_palette = _front_hair_palette(pos, col, parts, seen if hair_seen is None else hair_seen, skin, cfg)
+    over_hair = np.zeros(len(pos), bool)  # seen Gaussians in the hair's colour that are no source
     for p in np.unique(parts):
         members = np.flatnonzero(parts == p)
         todo = members[~seen[members]]
@@ -510,6 +556,10 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         front_only[todo] = never_behind
         # a photo's garment layer: filled by rows, no band, no mirror (``layer_profile_rows``)
         by_rows = on_grid and cfg.layer_row_median and never_behind and cfg.layer_profile_rows > 0
+        if never_behind and hair_palette is not None and name in cfg.hair_over_parts:
+            hair_like = _hair_coloured(col[src], hair_palette, cfg)
+            over_hair[src[hair_like]] = True
+            src = src[~hair_like]
         src_pos = pos[src] if len(src) else np.zeros((0, 3))
         twin_min = max(cfg.k, cfg.twin_below)
         twin = PART_INDEX.get(MIRROR.get(name, ""), -1)
@@ -713,6 +763,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         for p in np.unique(parts[front_only]):
             members = np.flatnonzero(parts == p)
             todo = members[front_only[members] & ~periodic[members] & ~layer_rows_only[members]]
+            members = members[~over_hair[members]]
             k = min(cfg.front_only_median, len(members))
             if len(todo) == 0 or k < 2:
                 continue
