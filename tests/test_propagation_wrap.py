@@ -164,7 +164,8 @@ def test_a_front_only_layers_rows_read_the_sources_before_erosion():
     eroded, keep the dark folds' middles only; the rows' medians are read on ``row_seen`` (the
     flags before erosion) and the back takes the cloth's colour, not the folds' (the long-skirt
     photo's navy skirt came out black behind). Not in rows whose first hits cover under
-    ``row_seen_share`` of the front: there they are what shows through the layer."""
+    ``row_seen_share`` of the front: there they are what shows through the layer; nor in colours
+    the trusted flags show nowhere near (``row_seen_rows``): a sleeve hanging in front."""
     R, C = 30, 92
     NAVY, FOLD = np.array([0.05, 0.1, 0.3]), np.array([0.01, 0.01, 0.03])
     th = 2 * np.pi * np.arange(C) / C - np.pi
@@ -175,7 +176,9 @@ def test_a_front_only_layers_rows_read_the_sources_before_erosion():
     fold = np.broadcast_to((np.arange(C) // 5) % 3 == 0, (R, C))  # a third of the columns, in 5-wide folds
     col = np.where(fold[..., None], FOLD, NAVY).reshape(-1, 3)
     seen = front.reshape(-1)
-    trusted = (front & fold & np.broadcast_to((np.arange(C) % 5 == 2), (R, C))).reshape(-1)  # the folds' middles
+    # erosion keeps the folds' middles and a few of the cloth's: its median is the folds'
+    middle = np.broadcast_to((np.arange(C) % 5 == 2), (R, C))
+    trusted = (front & middle & (fold | ((np.arange(C) // 5) % 6 == 1))).reshape(-1)
     parts = np.full(R * C, GARMENT_PART)
     cfg = WrapFillConfig(smooth_sweeps=0)
     out = wrap_fill_colors(pos, parts, trusted, col, None, cfg, layer_grid=(R, C, 1), row_seen=seen).numpy()
@@ -194,9 +197,20 @@ def test_a_front_only_layers_rows_read_the_sources_before_erosion():
     seen2 = (seen & ~low) | strip
     trusted2 = trusted & ~low
     fill = lambda share: wrap_fill_colors(pos, parts, trusted2, col2, None, WrapFillConfig(  # noqa: E731
-        smooth_sweeps=0, row_seen_share=share), layer_grid=(R, C, 1), row_seen=seen2).numpy()
+        smooth_sweeps=0, row_seen_share=share, row_seen_rows=None), layer_grid=(R, C, 1), row_seen=seen2).numpy()
     assert np.abs(fill(1 / 3)[low & back] - TROUSERS).max(1).min() > 0.2
     np.testing.assert_allclose(fill(0.0)[low & back], np.tile(TROUSERS, ((low & back).sum(), 1)), atol=1e-6)
+    # sleeves hanging in front of the cloth over half a row's front: first hits in a colour the
+    # trusted flags show nowhere near are not the cloth's
+    hips = (np.arange(R * C) // C >= 10) & (np.arange(R * C) // C < 13)
+    sleeve = hips & front.reshape(-1) & (np.abs(np.degrees(np.tile(th, R))) > 30)
+    col3 = col.copy()
+    col3[sleeve] = WHITE
+    trusted3 = trusted & ~sleeve
+    fill3 = lambda rows: wrap_fill_colors(pos, parts, trusted3, col3, None, WrapFillConfig(  # noqa: E731
+        smooth_sweeps=0, row_seen_rows=rows), layer_grid=(R, C, 1), row_seen=seen).numpy()
+    np.testing.assert_allclose(fill3(2)[hips & back], np.tile(NAVY, ((hips & back).sum(), 1)), atol=1e-6)
+    assert np.abs(fill3(None)[hips & back] - WHITE).max(1).max() < 0.05
 
 
 def test_a_front_only_layers_rows_are_smoothed_where_alike():

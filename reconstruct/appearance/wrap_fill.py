@@ -183,6 +183,12 @@ class WrapFillConfig:
     # erosion they carried a grey band round the coat's back hem (0.27 -> 0.18 rendered). The
     # long-skirt photo's lower rows have 21-39 of 45
     row_seen_share: float = 1 / 3
+    # ... and only those in a colour the eroded flags show within this many rows (within
+    # ``palette_tolerance`` in every channel): first hits where a sleeve or a hand hangs in front
+    # of the cloth are not the cloth's. On the long-skirt photo (prepared again) the sleeves at her
+    # hips put two light rows round the back of the skirt's top (0.45 0.49 0.53 against the navy
+    # 0.15 0.26 0.42 they now take). None: every colour
+    row_seen_rows: int | None = 2
     # parts whose front is not continued by mirroring (step 3 off): the head (the face is the
     # front's own; the back is the hair of the crown and sides) and the feet (the toe cap)
     no_mirror_parts: tuple[str, ...] = ("head", "foot.L", "foot.R")
@@ -488,8 +494,10 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     them. A photo's first hits on the cloth are speckled, the light ones (sheen, the matte's
     fringe) most, and erosion by 2 texels kept the dark folds between them: the long-skirt photo's
     lower rows kept 5-25 of their 25-42 seen front Gaussians, their blue at half the seen ones'
-    median, and the back of its navy skirt rendered near black, (0.012, 0.008, 0.024) at the knees
-    against the front's (0.031, 0.051, 0.106); read before erosion, (0.024, 0.027, 0.075).
+    median, and the back of its navy skirt rendered near black, (0.012, 0.012, 0.031) at the knees
+    against the front's (0.035, 0.043, 0.100); read before erosion, (0.024, 0.035, 0.090). Only in
+    rows the camera saw as cloth (``row_seen_share``) and in colours the eroded flags show nearby
+    (``row_seen_rows``).
     ``surface_normals``: (N,3) canonical normals of the surface each
     Gaussian sits on; given, a seen Gaussian behind its part's centre counts as a view of the back
     (``behind_share``) only where its normal faces the back (+Y). A torso's upper chest and shoulders
@@ -659,7 +667,16 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                     front_n = np.bincount(row_m[pos[members, 1] < centre_y], minlength=layer_grid[0])
                     loose_n = np.bincount(row_m[row_seen[members]], minlength=layer_grid[0])
                     cloth_row = loose_n >= np.maximum(1.0, cfg.row_seen_share * front_n)
-                    src = members[np.where(cloth_row[row_m], row_seen[members], seen[members])]
+                    extra = cloth_row[row_m] & row_seen[members] & ~seen[members]
+                    if cfg.row_seen_rows is not None and extra.any() and seen[members].any():
+                        # in colours the eroded flags show within ``row_seen_rows`` rows: not an
+                        # arm's or a top's hanging in front of the cloth
+                        trusted = members[seen[members]]
+                        scale = cfg.palette_tolerance / max(cfg.row_seen_rows, 1e-9)
+                        d, _ = cKDTree(np.c_[col[trusted], row_of(trusted) * scale]).query(
+                            np.c_[col[members[extra]], row_of(members[extra]) * scale], p=np.inf)
+                        extra[np.flatnonzero(extra)[d > cfg.palette_tolerance]] = False
+                    src = members[seen[members] | extra]
                     src_pos = pos[src]
                     pool = _on_both_sides(src_pos, col[src], pos[members, 0].mean(), cfg)
                     if pool.sum() < cfg.k:
