@@ -1143,3 +1143,11 @@ def test_hair_falling_over_a_photos_shoulders_is_not_carried_round_the_back():
     same = wrap_fill_colors(pos, parts, seen, np.r_[col[:len(head)], brown], None).numpy()
     mid_back = back & (pos[:, 2] > 1.2) & (pos[:, 2] < 1.3)
     assert np.abs(same[mid_back] - HAIR).max(1).max() < 0.1
+    # a head the video saw behind its centre: no photo, the rule stands down (the fill as without it)
+    head_deg = np.abs(np.degrees(np.arctan2(head[:, 0], -head[:, 1])))
+    seen_round = np.r_[head_deg <= 110, front]  # 20 degrees past its sides: 11 % of its back
+    col_round = np.r_[np.where(seen_round[:len(head), None], head_truth, 0.5), col[len(head):]]
+    round_ = wrap_fill_colors(pos, parts, seen_round, col_round, None).numpy()
+    off_round = wrap_fill_colors(pos, parts, seen_round, col_round, None, WrapFillConfig(hair_over_parts=())).numpy()
+    np.testing.assert_allclose(round_[back], off_round[back], atol=1e-6)
+    assert np.abs(round_[upper_back] - HAIR).max(1).mean() < 0.1

@@ -412,18 +412,26 @@ def _layer_row_spacing(layer_pos: np.ndarray, rows: int) -> float | None:
 
 
 def _front_hair_palette(pos: np.ndarray, col: np.ndarray, parts: np.ndarray, seen: np.ndarray,
-                        skin: np.ndarray | None, cfg: WrapFillConfig) -> np.ndarray | None:
+                        hair_seen: np.ndarray, skin: np.ndarray | None, cfg: WrapFillConfig,
+                        surf: np.ndarray | None = None) -> np.ndarray | None:
     """(H,3) the colours of the hair a head seen from the front shows round its face
-    (``hair.hair_sources`` on its seen Gaussians: strands lit and shadowed alike), or None: no
-    head, no hair of its own colour, or a head seen behind its centre (a video that turned)."""
+    (``hair.hair_sources`` on its ``hair_seen`` Gaussians: strands lit and shadowed alike), or
+    None: no head, no hair of its own colour, or a head seen behind its centre (a video that
+    turned; the fill's own test on ``seen``, with the surface normals ``surf`` when given)."""
     if "head" not in PART_INDEX or not cfg.hair_over_parts:
         return None
     members = np.flatnonzero(parts == PART_INDEX["head"])
-    src = members[seen[members]]
-    if len(src) < cfg.k:
+    if len(members) < cfg.k:
         return None
     centre = pos[members].mean(0)
-    if (pos[src, 1] > centre[1]).sum() >= max(cfg.k, cfg.behind_share * (pos[members, 1] > centre[1]).sum()):
+    src = members[seen[members]]
+    behind = pos[src, 1] > centre[1]
+    if surf is not None:
+        behind &= surf[src, 1] > 0
+    if behind.sum() >= max(cfg.k, cfg.behind_share * (pos[members, 1] > centre[1]).sum()):
+        return None
+    src = members[hair_seen[members]]
+    if len(src) < cfg.k:
         return None
     hair = hair_sources(pos[src], col[src], centre[0], contrast=cfg.hair_contrast, min_share=cfg.hair_min_share,
                         k=cfg.k, skin=skin)
@@ -543,7 +551,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         hands = np.isin(parts, [PART_INDEX[n] for n in cfg.hair_skin_parts if n in PART_INDEX]) & seen
         skin = skin_reference(col[hands])
     # the colours of the hair a photo's head shows, for the parts it falls over (``hair_over_parts``)
-    hair_palette = _front_hair_palette(pos, col, parts, seen if hair_seen is None else hair_seen, skin, cfg)
+    hair_palette = _front_hair_palette(pos, col, parts, seen, seen if hair_seen is None else hair_seen, skin, cfg, surf)
     over_hair = np.zeros(len(pos), bool)  # seen Gaussians in the hair's colour that are no source
     for p in np.unique(parts):
         members = np.flatnonzero(parts == p)
