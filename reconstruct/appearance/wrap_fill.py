@@ -411,25 +411,33 @@ def _layer_row_spacing(layer_pos: np.ndarray, rows: int) -> float | None:
     return step if step > 0 else None
 
 
+def _never_seen_behind(pos: np.ndarray, members: np.ndarray, src: np.ndarray, visible: np.ndarray,
+                       surf: np.ndarray | None, cfg: WrapFillConfig) -> bool:
+    """Whether a part (``members``; ``src`` its seen ones) was never seen behind its centre
+    (``behind_share``): fewer than ``k`` of ``src`` lie behind its centre -- facing the back, given
+    the surface normals ``surf`` -- or fewer than ``behind_share`` of its ``visible`` Gaussians
+    there."""
+    centre_y = pos[members, 1].mean()
+    behind = pos[src, 1] > centre_y
+    if surf is not None:  # and facing the back: a front lying behind the centre plane is no view of it
+        behind &= surf[src, 1] > 0
+    behind_visible = (pos[members, 1] > centre_y) & visible[members]
+    return bool(behind.sum() < max(cfg.k, cfg.behind_share * behind_visible.sum()))
+
+
 def _front_hair_palette(pos: np.ndarray, col: np.ndarray, parts: np.ndarray, seen: np.ndarray,
                         hair_seen: np.ndarray, skin: np.ndarray | None, cfg: WrapFillConfig,
-                        surf: np.ndarray | None = None) -> np.ndarray | None:
+                        visible: np.ndarray, surf: np.ndarray | None = None) -> np.ndarray | None:
     """(H,3) the colours of the hair a head seen from the front shows round its face
     (``hair.hair_sources`` on its ``hair_seen`` Gaussians: strands lit and shadowed alike), or
     None: no head, no hair of its own colour, or a head seen behind its centre (a video that
-    turned; the fill's own test on ``seen``, with the surface normals ``surf`` when given)."""
+    turned; ``_never_seen_behind`` on ``seen``, as the fill decides it)."""
     if "head" not in PART_INDEX or not cfg.hair_over_parts:
         return None
     members = np.flatnonzero(parts == PART_INDEX["head"])
-    if len(members) < cfg.k:
+    if len(members) < cfg.k or not _never_seen_behind(pos, members, members[seen[members]], visible, surf, cfg):
         return None
     centre = pos[members].mean(0)
-    src = members[seen[members]]
-    behind = pos[src, 1] > centre[1]
-    if surf is not None:
-        behind &= surf[src, 1] > 0
-    if behind.sum() >= max(cfg.k, cfg.behind_share * (pos[members, 1] > centre[1]).sum()):
-        return None
     src = members[hair_seen[members]]
     if len(src) < cfg.k:
         return None
@@ -445,6 +453,28 @@ def _hair_coloured(src_col: np.ndarray, palette: np.ndarray, cfg: WrapFillConfig
     like = cKDTree(palette).query(src_col, p=np.inf)[0] <= cfg.palette_tolerance
     like &= np.abs(src_col - np.median(src_col, 0)).max(1) > cfg.palette_tolerance
     return like if (~like).sum() >= cfg.k else np.zeros(len(src_col), bool)
+
+
+def _cloth_row_sources(members: np.ndarray, seen: np.ndarray, row_seen: np.ndarray, pos: np.ndarray,
+                       col: np.ndarray, centre_y: float, layer_grid: tuple[int, int, int],
+                       cfg: WrapFillConfig) -> np.ndarray:
+    """The sources a photo's garment layer (``members``, row-major on ``layer_grid``) reads its rows
+    on: ``seen`` (eroded), and ``row_seen`` (before erosion) in the rows whose first hits cover at
+    least ``row_seen_share`` of their Gaussians in front of the layer's centre ``centre_y``, in
+    colours the eroded flags show within ``row_seen_rows`` rows (not an arm's or a top's hanging in
+    front of the cloth)."""
+    row_m = (members - members[0]) // layer_grid[1]
+    front_n = np.bincount(row_m[pos[members, 1] < centre_y], minlength=layer_grid[0])
+    loose_n = np.bincount(row_m[row_seen[members]], minlength=layer_grid[0])
+    cloth_row = loose_n >= np.maximum(1.0, cfg.row_seen_share * front_n)
+    own = seen[members]
+    extra = cloth_row[row_m] & row_seen[members] & ~own
+    if cfg.row_seen_rows is not None and extra.any() and own.any():
+        height = max(cfg.row_seen_rows, 1e-9)  # in rows: 0 is the row alone
+        d, _ = cKDTree(_joint(col[members[own]], row_m[own], cfg, height)).query(
+            _joint(col[members[extra]], row_m[extra], cfg, height), p=np.inf)
+        extra[np.flatnonzero(extra)[d > cfg.palette_tolerance]] = False
+    return members[own | extra]
 
 
 def _on_both_sides(band_pos: np.ndarray, band_col: np.ndarray, centre_x: float, cfg: WrapFillConfig) -> np.ndarray:
@@ -551,7 +581,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         hands = np.isin(parts, [PART_INDEX[n] for n in cfg.hair_skin_parts if n in PART_INDEX]) & seen
         skin = skin_reference(col[hands])
     # the colours of the hair a photo's head shows, for the parts it falls over (``hair_over_parts``)
-    hair_palette = _front_hair_palette(pos, col, parts, seen, seen if hair_seen is None else hair_seen, skin, cfg, surf)
+    hair_palette = _front_hair_palette(pos, col, parts, seen, seen if hair_seen is None else hair_seen, skin, cfg,
+                                       visible, surf)
     over_hair = np.zeros(len(pos), bool)  # seen Gaussians in the hair's colour that are no source
     for p in np.unique(parts):
         members = np.flatnonzero(parts == p)
@@ -563,12 +594,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         on_grid = layer_grid is not None and p == GARMENT_PART and len(members) == layer_grid[0] * layer_grid[1]
         centre_y = pos[members, 1].mean()
         src = members[seen[members]]
-        behind_src = pos[src, 1] > centre_y
-        if surf is not None:  # and facing the back: a front lying behind the centre plane is no view of it
-            behind_src &= surf[src, 1] > 0
-        n_seen_behind = behind_src.sum()
-        behind_visible = (pos[members, 1] > centre_y) & visible[members]
-        never_behind = n_seen_behind < max(cfg.k, cfg.behind_share * behind_visible.sum())
+        never_behind = _never_seen_behind(pos, members, src, visible, surf, cfg)
         front_only[todo] = never_behind
         # a photo's garment layer: filled by rows, no band, no mirror (``layer_profile_rows``)
         by_rows = on_grid and cfg.layer_row_median and never_behind and cfg.layer_profile_rows > 0
@@ -662,6 +688,9 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         # part shows on both sides at that height: the green-jacket photo's open front showed the
         # white shirt and collar on one side only, and its top rows carried them onto the back
         fills_by_rows = on_grid and cfg.layer_row_median
+        if by_rows and row_seen is not None:  # rows the camera saw as cloth read on the flags before erosion
+            src = _cloth_row_sources(members, seen, row_seen, pos, col, centre_y, layer_grid, cfg)
+            src_pos = pos[src]
         pool = None
         if fills_by_rows or (cfg.band_reach > 0 and not (posterior or never_behind)):
             pool = _on_both_sides(src_pos, col[src], pos[members, 0].mean(), cfg)
@@ -670,25 +699,6 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         if fills_by_rows:
             row_of = lambda i: (i - members[0]) // layer_grid[1]  # noqa: E731
             if by_rows:
-                if row_seen is not None:  # rows the camera saw as cloth read on the flags before erosion
-                    row_m = row_of(members)
-                    front_n = np.bincount(row_m[pos[members, 1] < centre_y], minlength=layer_grid[0])
-                    loose_n = np.bincount(row_m[row_seen[members]], minlength=layer_grid[0])
-                    cloth_row = loose_n >= np.maximum(1.0, cfg.row_seen_share * front_n)
-                    extra = cloth_row[row_m] & row_seen[members] & ~seen[members]
-                    if cfg.row_seen_rows is not None and extra.any() and seen[members].any():
-                        # in colours the eroded flags show within ``row_seen_rows`` rows: not an
-                        # arm's or a top's hanging in front of the cloth
-                        trusted = members[seen[members]]
-                        scale = cfg.palette_tolerance / max(cfg.row_seen_rows, 1e-9)
-                        d, _ = cKDTree(np.c_[col[trusted], row_of(trusted) * scale]).query(
-                            np.c_[col[members[extra]], row_of(members[extra]) * scale], p=np.inf)
-                        extra[np.flatnonzero(extra)[d > cfg.palette_tolerance]] = False
-                    src = members[seen[members] | extra]
-                    src_pos = pos[src]
-                    pool = _on_both_sides(src_pos, col[src], pos[members, 0].mean(), cfg)
-                    if pool.sum() < cfg.k:
-                        pool[:] = True
                 rows_s, pos_s, col_s = row_of(src[pool]), src_pos[pool], col[src][pool]
                 low = _row_median(row_of(todo), pos[todo], rows_s, pos_s, col_s, rows_s, pos_s, col_s, len(src))
                 low = _row_profile(row_of(todo), low, cfg.layer_profile_rows, cfg.palette_tolerance)
