@@ -116,6 +116,26 @@ def test_a_body_coloured_print_inside_the_cloth_stops_the_reading():
     assert not _flags(_body(rng), pos, col, seen, rc).any()
 
 
+def test_an_open_front_showing_the_legs_from_the_hem_up_is_not_the_cloths_colour():
+    """An open coat: the legs show between its front edges from the hem up to mid-height. Joined to
+    the legs under the hem, that strip is the body, not a colour of the cloth: the legs under the
+    hem are found (and the strip's bottom, within ``depth``). The same strip cut off from the hem by
+    one row of cloth is a print, and nothing is flagged."""
+    rng = np.random.default_rng(6)
+    pos, rc = _tube()
+    col, seen, legs, _ = _layer_colours(rng, rc, pos)
+    strip = seen & (rc[:, 0] >= 8) & (np.abs(pos[:, 0]) < 0.07)
+    col[strip] = SKIN + rng.uniform(-0.06, 0.06, (strip.sum(), 3))
+    body = _body(rng)
+    flags = _flags(body, pos, col, seen, rc)
+    assert flags[legs].mean() > 0.9
+    assert not (flags & ~_near(legs | strip, rc)).any(), "cloth taken for the body"
+    assert flags[strip & (pos[:, 2] > HEM + ThroughConfig().depth + 0.01)].sum() == 0  # the walk's reach
+    cut = seen & (rc[:, 0] == R - 4)
+    col[cut] = 0.5 + np.where(rc[cut, 1] % 2 == 0, 0.15, -0.15)[:, None]
+    assert not _flags(body, pos, col, seen, rc).any()
+
+
 def test_nothing_is_told_apart_on_cloth_of_the_bodys_colour():
     """A skin-toned skirt over bare legs: the body and the cloth cannot be told apart, nothing is flagged."""
     rng = np.random.default_rng(2)

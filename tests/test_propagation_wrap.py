@@ -1151,3 +1151,26 @@ def test_hair_falling_over_a_photos_shoulders_is_not_carried_round_the_back():
     off_round = wrap_fill_colors(pos, parts, seen_round, col_round, None, WrapFillConfig(hair_over_parts=())).numpy()
     np.testing.assert_allclose(round_[back], off_round[back], atol=1e-6)
     assert np.abs(round_[upper_back] - HAIR).max(1).mean() < 0.1
+
+
+def test_the_hair_rule_on_a_part_with_no_seen_gaussians():
+    """An upper arm no view saw, beside a front-only head and a torso with hair over it: the hair rule
+    has no sources of the arm to read (it read a median of none, with numpy's warning, on the
+    grey-skirt photo), and the arm takes the torso's colours as without the rule."""
+    import warnings
+    head, _, head_seen, head_truth = front_only_head()
+    torso, th = cylinder(radius=0.15, height=0.5, n_theta=96, n_z=100, z0=1.0)
+    front = np.abs(np.degrees(th)) <= 85
+    arm, _ = _tilted_arm(45.0)
+    pos = np.r_[head, torso, arm]
+    parts = np.r_[np.full(len(head), PART_INDEX["head"]), np.full(len(torso), PART_INDEX["torso"]),
+                  np.full(len(arm), PART_INDEX["upperarm.L"])]
+    seen = np.r_[head_seen, front, np.zeros(len(arm), bool)]
+    col = np.r_[np.where(head_seen[:, None], head_truth, 0.5), np.tile(RED, (len(torso), 1)), np.full((len(arm), 3), 0.5)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(hair_over_parts=())).numpy()
+    a = slice(len(head) + len(torso), None)
+    assert np.isfinite(out).all()
+    np.testing.assert_allclose(out[a], off[a], atol=1e-6)

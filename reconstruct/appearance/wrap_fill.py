@@ -449,7 +449,9 @@ def _front_hair_palette(pos: np.ndarray, col: np.ndarray, parts: np.ndarray, see
 def _hair_coloured(src_col: np.ndarray, palette: np.ndarray, cfg: WrapFillConfig) -> np.ndarray:
     """(M,) bool: the sources within ``palette_tolerance`` in every channel of some colour of the
     hair's ``palette`` and not of the part's own median colour (``hair_over_parts``); none when
-    fewer than ``k`` sources would be left."""
+    fewer than ``k`` sources would be left (a part with none seen among them)."""
+    if len(src_col) <= cfg.k:
+        return np.zeros(len(src_col), bool)
     like = cKDTree(palette).query(src_col, p=np.inf)[0] <= cfg.palette_tolerance
     like &= np.abs(src_col - np.median(src_col, 0)).max(1) > cfg.palette_tolerance
     return like if (~like).sum() >= cfg.k else np.zeros(len(src_col), bool)

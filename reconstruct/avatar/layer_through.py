@@ -19,6 +19,14 @@ took the cloth's colour. The cloth's colours are those of the seen layer Gaussia
 nearer to it than to the cloth's, shows the body; the walk stops at the first that does not (the
 cloth). Unseen and transparent ones are passed over.
 
+An open front (``_body_from_the_hem``). Under an open coat the legs show between its front edges
+from the hem up; those layer Gaussians took the trousers' colour too, and among the cloth's colours
+they made the cloth "of the body's colour" (the next paragraph but one), so no column was read. The
+seen layer Gaussians joined to the bottom row by a chain of body-coloured ones are left out of the
+cloth's colours. On the green-coat photo the coat's back had a dark band at its hem, 8 rows of
+trousers colour carried round; 232 layer Gaussians are now flagged, and the back is the coat's green
+down to the hem. A body-coloured print is not joined to the hem and stays the cloth's.
+
 The layer's top is not read: there the body above it is mostly the same garment (a dress's bodice
 on the torso over its skirt's layer), and on the synthetic dress of seed 2 the top rows flagged
 that way left the back's top rows to the neckline's skin (unseen views -0.03 dB).
@@ -112,11 +120,23 @@ def layer_shows_body(body_positions: np.ndarray, body_parts: np.ndarray, body_co
     tree = cKDTree(rpos)
     w = cfg.luminance_weight
     local = _local_median(lcol, layer_seen, index, cfg.window)
-    # the cloth: the seen layer's colours farther than ``depth`` from both ends of their column
+    bodies = {}  # column -> the body's colour under its bottom Gaussian
+    for c in range(C):
+        e = index[R - 1, c]
+        if e < 0:
+            continue
+        near = [j for j in tree.query_ball_point(lpos[e], cfg.reach) if rpos[j, 2] <= lpos[e, 2] + cfg.edge_slack]
+        if len(near) >= cfg.k:
+            bodies[c] = np.median(rcol[near], axis=0)
+    # the cloth: the seen layer's colours farther than ``depth`` from both ends of their column, less
+    # the body's colour reaching up from the bottom row (an open front)
     z = np.full((R, C), np.nan)
     z[rc[:, 0], rc[:, 1]] = lpos[:, 2]
     top, bottom = z[0, rc[:, 1]], z[R - 1, rc[:, 1]]
-    inside = layer_seen & (top - lpos[:, 2] > cfg.depth) & (lpos[:, 2] - bottom > cfg.depth)
+    opening = _body_from_the_hem(local, layer_seen, index, bodies, cfg)
+    if opening.sum() > cfg.max_share * layer_seen.sum():
+        return out  # the garment is the body's colour
+    inside = layer_seen & ~opening & (top - lpos[:, 2] > cfg.depth) & (lpos[:, 2] - bottom > cfg.depth)
     if inside.sum() < cfg.k:
         return out
     cloth = cKDTree(opponent(local[inside], w))
@@ -125,14 +145,8 @@ def layer_shows_body(body_positions: np.ndarray, body_parts: np.ndarray, body_co
     def to_cloth(colour):  # distance to the cloth's k_cloth-th nearest colour (its odd few ignored)
         return cloth.query(opponent(colour, w), k=k_cloth)[0][-1]
 
-    for c in range(C):
+    for c, body in bodies.items():
         e = index[R - 1, c]
-        if e < 0:
-            continue
-        near = [j for j in tree.query_ball_point(lpos[e], cfg.reach) if rpos[j, 2] <= lpos[e, 2] + cfg.edge_slack]
-        if len(near) < cfg.k:
-            continue
-        body = np.median(rcol[near], axis=0)
         if to_cloth(body) < cfg.min_contrast:
             continue  # the cloth has the body's colour: the two cannot be told apart here
         for r in range(R - 1, -1, -1):
@@ -147,6 +161,39 @@ def layer_shows_body(body_positions: np.ndarray, body_parts: np.ndarray, body_co
             out[i] = True
     if out.sum() > cfg.max_share * layer_seen.sum():
         return np.zeros(M, bool)
+    return out
+
+
+def _body_from_the_hem(local: np.ndarray, seen: np.ndarray, index: np.ndarray, bodies: dict,
+                       cfg: ThroughConfig) -> np.ndarray:
+    """(M,) bool: the seen layer Gaussians joined to the bottom row (8-connected on the grid,
+    wrapping round the tube) by seen ones whose colour (``local``) is within ``tolerance`` of the
+    body's under the hem (``bodies``: column -> colour; each Gaussian is compared with the colour of
+    the column its chain started from). Under an open coat the legs show between its front edges
+    from the hem up: left among the cloth's colours, they made the cloth "of the body's colour" and
+    no column under the hem was read. A body-coloured print within the cloth is not joined to the
+    hem and stays the cloth's."""
+    R, C = index.shape
+    out = np.zeros(len(local), bool)
+    w = cfg.luminance_weight
+    stack = []
+    for c, body in bodies.items():
+        i = index[R - 1, c]
+        if seen[i] and colour_distance(local[i], body, w) <= cfg.tolerance:
+            out[i] = True
+            stack.append((R - 1, c, body))
+    while stack:
+        r, c, body = stack.pop()
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                rr = r + dr
+                if not 0 <= rr < R:
+                    continue
+                i = index[rr, (c + dc) % C]
+                if i < 0 or out[i] or not seen[i] or colour_distance(local[i], body, w) > cfg.tolerance:
+                    continue
+                out[i] = True
+                stack.append((rr, (c + dc) % C, body))
     return out
 
 
