@@ -139,7 +139,10 @@ CUT_EDGE_SHARE = 0.02
 def cut_colors_of(state: AvatarState, data: TrainingData, *, edge_share: float = CUT_EDGE_SHARE) -> torch.Tensor:
     """(N+M,3) float32: ``appearance.cut_fill.cut_colors`` for the Gaussians ``out_of_view``, read
     on every training frame's whole image within ``edge_share`` of its longer side of the edges; NaN
-    for the others (all NaN when the whole person is in view: the frames are then posed once)."""
+    for the others (all NaN when the whole person is in view: the frames are then posed once).
+    Otherwise each frame is posed a second time for the colours rather than every frame's
+    projections held at once (about 1 MB a frame on a 60k-Gaussian avatar; a long video's frames
+    would hold hundreds)."""
     beyond = out_of_view(state, data).numpy()
     if not beyond.any():
         return torch.full((len(beyond), 3), float("nan"))

@@ -183,12 +183,14 @@ def near_edges(points: np.ndarray, crop: Crop, source_size: tuple[int, int], edg
 
 
 def held_landmarks(points: np.ndarray, visibility: np.ndarray, crop: Crop, source_size: tuple[int, int], edges,
-                   margin: float, below: float) -> np.ndarray:
+                   margin: float, below: float, near: np.ndarray | None = None) -> np.ndarray:
     """(K,) bool: the landmarks (``points`` (K,2) crop pixels, detector confidences ``visibility``
     (K,)) that the frame's cutting ``edges`` cut off for the fit's hold (``FitConfig.w_cut``): past
     an edge, or within ``margin`` crop pixels of it with a confidence below ``below`` -- the
     detector's guess for a knee out of the frame, put on its last row. A foot the photo shows at its
-    edge, with confidence, is no guess (its limb is not held; it is left out of the fit all the same)."""
+    edge, with confidence, is no guess (its limb is not held; it is left out of the fit all the same).
+    ``near``: ``near_edges(points, crop, source_size, edges, margin)`` when the caller has it."""
     past = near_edges(points, crop, source_size, edges, 0.0)
-    near = near_edges(points, crop, source_size, edges, margin)
+    if near is None:
+        near = near_edges(points, crop, source_size, edges, margin)
     return past | (near & (np.asarray(visibility, np.float64).reshape(-1) < below))

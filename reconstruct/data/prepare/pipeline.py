@@ -287,7 +287,7 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
             # the edge, or at it with the detector unsure (knees of a photo cut at the knees put on
             # its bottom row at 0.22-0.29); not a foot the photo shows at its edge with confidence
             kept.cut[k] = held_landmarks(kept.keypoints[k], kept.visibility[k], cr, (W0, H0), edges,
-                                         EDGE_LANDMARK_MARGIN * max(W, H), HELD_BELOW_VISIBILITY)
+                                         EDGE_LANDMARK_MARGIN * max(W, H), HELD_BELOW_VISIBILITY, near=near)
             kept.visibility[k, near] = 0.0
     base_spec = BodySpec.anny(dict(phenotype or DEFAULT_PHENOTYPE), 5.0)
     body = base_spec.build()
