@@ -233,6 +233,27 @@ def test_a_front_only_layers_rows_are_smoothed_where_alike():
     assert (np.abs(smooth - own).sum(1) < np.abs(smooth - other).sum(1)).all()
 
 
+def test_row_profile_takes_a_rows_shading_for_shading_not_a_stripe():
+    """A row in shadow (the coat photo's top rows under its folded arms: 0.15 against 0.33, much
+    the same in each channel) is averaged with its neighbours once half its mean difference is
+    taken off; compared channel by channel it is a stripe and stays. A black stripe between white
+    rows, or a change of hue, stays either way."""
+    from reconstruct.appearance.wrap_fill import _row_profile
+    coat, shade = np.array([0.33, 0.33, 0.27]), np.array([0.15, 0.15, 0.11])
+    rows = np.repeat(np.arange(12), 3)  # three queries a row
+    col = np.tile(coat, (36, 1))
+    col[rows == 0] = shade
+    tol = WrapFillConfig().palette_tolerance
+    got = _row_profile(rows, col, 5, tol, luminance=0.5)
+    np.testing.assert_allclose(got[rows == 0], np.tile((shade + 5 * coat) / 6, (3, 1)), atol=1e-12)
+    np.testing.assert_allclose(got[rows == 6], np.tile(coat, (3, 1)), atol=1e-12)  # out of the shade's reach
+    np.testing.assert_allclose(_row_profile(rows, col, 5, tol, luminance=1.0)[rows == 0], col[rows == 0])
+    for dark in ((0.05, 0.05, 0.05), (0.33, 0.10, 0.27)):  # a black stripe on white; a magenta one on green
+        base = np.tile((0.9, 0.9, 0.9) if dark[1] == 0.05 else coat, (36, 1))
+        base[rows == 0] = dark
+        np.testing.assert_allclose(_row_profile(rows, base, 5, tol, luminance=0.5)[rows == 0], base[rows == 0])
+
+
 def test_layer_row_with_a_short_band_leaves_out_a_colour_seen_on_one_side(monkeypatch):
     """A row whose band is short of ``k`` takes the nearest of its own seen Gaussians, but only in
     colours the cloth shows on both sides at that height: the green-jacket photo's open front showed
