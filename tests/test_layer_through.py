@@ -136,28 +136,6 @@ def test_an_open_front_showing_the_legs_from_the_hem_up_is_not_the_cloths_colour
     assert not _flags(body, pos, col, seen, rc).any()
 
 
-def test_the_opening_from_the_hem_stops_at_the_cloths_shade():
-    """``_body_from_the_hem`` on a 5 x 4 grid over black trousers under an olive coat: the chain of
-    trouser-coloured Gaussians from the bottom row is the opening; a fold of the coat in shadow,
-    within the tolerance of the trousers' black but nearer the coat's colour, is not (the green-coat
-    photo's shaded folds), nor is black cloth not joined to the hem. Cloth all within the tolerance
-    of the body's colour gives None."""
-    from reconstruct.avatar.layer_through import _body_from_the_hem
-    black, olive, shade = np.array([0.06, 0.06, 0.05]), np.array([0.316, 0.316, 0.248]), np.array([0.25, 0.25, 0.2])
-    cfg = ThroughConfig()
-    assert colour_distance(shade, black) < cfg.tolerance  # the case the nearer-colour test is for
-    index = np.arange(20).reshape(5, 4)  # rows 0 (top) .. 4 (the hem)
-    local = np.tile(olive, (20, 1))
-    local[index[4, 0]] = local[index[3, 0]] = black  # the opening at column 0, two rows up
-    local[index[4, 1]] = local[index[3, 1]] = shade  # a shaded fold beside it
-    local[index[0, 2]] = black  # black cloth far from the hem
-    seen = np.ones(20, bool)
-    bodies = {c: black for c in range(4)}
-    out = _body_from_the_hem(local, seen, index, bodies, local, cfg)
-    np.testing.assert_array_equal(np.flatnonzero(out), sorted([index[4, 0], index[3, 0]]))
-    assert _body_from_the_hem(local, seen, index, bodies, np.tile(shade, (20, 1)), cfg) is None
-
-
 def test_nothing_is_told_apart_on_cloth_of_the_bodys_colour():
     """A skin-toned skirt over bare legs: the body and the cloth cannot be told apart, nothing is flagged."""
     rng = np.random.default_rng(2)

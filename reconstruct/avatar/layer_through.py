@@ -22,9 +22,9 @@ cloth). Unseen and transparent ones are passed over.
 An open front (``_body_from_the_hem``). Under an open coat the legs show between its front edges
 from the hem up; those layer Gaussians took the trousers' colour too, and among the cloth's colours
 they made the cloth "of the body's colour" (the next paragraph but one), so no column was read. The
-seen layer Gaussians joined to the bottom row by a chain of body-coloured ones (nearer to the body's
-colour than to the cloth's: a shaded fold is the cloth's) are left out of the cloth's colours. On the green-coat photo the coat's back had a dark band at its hem, 8 rows of
-trousers colour carried round; 208 layer Gaussians are now flagged, and the back is the coat's green
+seen layer Gaussians joined to the bottom row by a chain of body-coloured ones are left out of the
+cloth's colours. On the green-coat photo the coat's back had a dark band at its hem, 8 rows of
+trousers colour carried round; 234 layer Gaussians are now flagged, and the back is the coat's green
 down to the hem. A body-coloured print is not joined to the hem and stays the cloth's.
 
 The layer's top is not read: there the body above it is mostly the same garment (a dress's bodice
@@ -133,13 +133,10 @@ def layer_shows_body(body_positions: np.ndarray, body_parts: np.ndarray, body_co
     z = np.full((R, C), np.nan)
     z[rc[:, 0], rc[:, 1]] = lpos[:, 2]
     top, bottom = z[0, rc[:, 1]], z[R - 1, rc[:, 1]]
-    inside = layer_seen & (top - lpos[:, 2] > cfg.depth) & (lpos[:, 2] - bottom > cfg.depth)
-    if inside.sum() < cfg.k:
-        return out
-    opening = _body_from_the_hem(local, layer_seen, index, bodies, local[inside], cfg)
-    if opening is None or opening.sum() > cfg.max_share * layer_seen.sum():
+    opening = _body_from_the_hem(local, layer_seen, index, bodies, cfg)
+    if opening.sum() > cfg.max_share * layer_seen.sum():
         return out  # the garment is the body's colour
-    inside &= ~opening
+    inside = layer_seen & ~opening & (top - lpos[:, 2] > cfg.depth) & (lpos[:, 2] - bottom > cfg.depth)
     if inside.sum() < cfg.k:
         return out
     cloth = cKDTree(opponent(local[inside], w))
@@ -168,36 +165,21 @@ def layer_shows_body(body_positions: np.ndarray, body_parts: np.ndarray, body_co
 
 
 def _body_from_the_hem(local: np.ndarray, seen: np.ndarray, index: np.ndarray, bodies: dict,
-                       cloth: np.ndarray, cfg: ThroughConfig) -> np.ndarray | None:
+                       cfg: ThroughConfig) -> np.ndarray:
     """(M,) bool: the seen layer Gaussians joined to the bottom row (8-connected on the grid,
     wrapping round the tube) by seen ones whose colour (``local``) is within ``tolerance`` of the
     body's under the hem (``bodies``: column -> colour; each Gaussian is compared with the colour of
-    the column its chain started from) and nearer to it than to the cloth: the ``k``-th nearest of
-    the ``cloth`` colours (the layer's seen colours away from its ends) farther than ``tolerance``
-    from the bodies' median colour. The green coat's shaded folds are within the tolerance of its
-    black trousers (0.10) and nearer its green (0.04). None when fewer than ``k`` cloth colours are
-    that far (the cloth is the body's colour). Under an open coat the legs show between its front edges
+    the column its chain started from). Under an open coat the legs show between its front edges
     from the hem up: left among the cloth's colours, they made the cloth "of the body's colour" and
     no column under the hem was read. A body-coloured print within the cloth is not joined to the
     hem and stays the cloth's."""
     R, C = index.shape
     out = np.zeros(len(local), bool)
     w = cfg.luminance_weight
-    if not bodies:
-        return out
-    clear = cloth[colour_distance(cloth, np.median(np.stack(list(bodies.values())), axis=0), w) > cfg.tolerance]
-    if len(clear) < cfg.k:
-        return None  # the cloth is the body's colour
-    tree = cKDTree(opponent(clear, w))
     stack = []
-
-    def body_coloured(i, body):
-        to_body = colour_distance(local[i], body, w)
-        return to_body <= cfg.tolerance and to_body < tree.query(opponent(local[i], w), k=cfg.k)[0][-1]
-
     for c, body in bodies.items():
         i = index[R - 1, c]
-        if seen[i] and body_coloured(i, body):
+        if seen[i] and colour_distance(local[i], body, w) <= cfg.tolerance:
             out[i] = True
             stack.append((R - 1, c, body))
     while stack:
@@ -208,7 +190,7 @@ def _body_from_the_hem(local: np.ndarray, seen: np.ndarray, index: np.ndarray, b
                 if not 0 <= rr < R:
                     continue
                 i = index[rr, (c + dc) % C]
-                if i < 0 or out[i] or not seen[i] or not body_coloured(i, body):
+                if i < 0 or out[i] or not seen[i] or colour_distance(local[i], body, w) > cfg.tolerance:
                     continue
                 out[i] = True
                 stack.append((rr, (c + dc) % C, body))
