@@ -1031,6 +1031,19 @@ def test_front_only_torso_with_only_a_neckline_band_takes_its_neighbours():
     out, old = _upper_back_with_and_without_the_rule(pos, parts, seen, col, n_tube)
     assert np.abs(out - green).max() < 1e-6
     assert np.abs(old - WHITE).max(1).mean() < 0.05  # the case is real
+    # a few of the shirt seen lower down, past neckline_reach (the cut-coat photo: 19 of a band of
+    # 452, the layer and the folded arms hiding the rest): fewer than 4 k do not resolve the sides
+    # either, and the back still takes the neighbours' green; a strip of 4 k or more is the torso's
+    # own band, and its back takes the shirt's white
+    deg = np.abs(np.degrees(np.arctan2(pos[:, 0], -pos[:, 1])))
+    for rows, width, want in (((1.295, 1.325), 12.0, green), ((1.20, 1.30), 16.0, WHITE)):
+        lower = seen.copy()
+        lower[:n_tube] |= (pos[:n_tube, 2] > rows[0]) & (pos[:n_tube, 2] < rows[1]) & (deg[:n_tube] < width)
+        n = int((lower & ~seen).sum())
+        k = WrapFillConfig().k
+        assert (k <= n < 4 * k) if want is green else n >= 4 * k, n
+        got, _ = _upper_back_with_and_without_the_rule(pos, parts, lower, col, n_tube)
+        assert np.abs(got - want).max() < 1e-6
 
 
 def test_front_only_head_with_glasses_and_brows_takes_the_hair(monkeypatch):
