@@ -790,14 +790,9 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     # a part whose band was all neckline takes the nearest colours of the other parts, not its own
     # seen front (the shirt between an open jacket's lapels); before the fallback below, so that
     # the parts left to it (a neck hidden by a collar) find it filled
-    # -- but not the neck's or the head's: a back closes higher than a front, and the cut coat
-    # photo's upper back took the neck's skin at the nape
-    above = [PART_INDEX[n] for n in ("neck", "head") if n in PART_INDEX]
     for p in neckline_only:
         own = np.flatnonzero((parts == p) & ~seen)
-        other = np.flatnonzero((seen | filled) & (parts != p) & ~np.isin(parts, above))
-        if not len(other):
-            other = np.flatnonzero((seen | filled) & (parts != p))
+        other = np.flatnonzero((seen | filled) & (parts != p))
         if len(own) and len(other):
             _, idx = cKDTree(pos[other]).query(pos[own])
             out[own] = out[other[idx]]
