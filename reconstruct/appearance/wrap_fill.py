@@ -656,15 +656,16 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         if both.sum() >= cfg.k:
             band_idx, band_pos, band_col = band_idx[both], band_pos[both], band_col[both]
         # the neckline left out of a torso's band (``neckline_parts``); only with a band of at least
-        # 4 k Gaussians: on a coarse model (17 band Gaussians on the whole torso, 7 of them near
-        # the neck) the neckline is not resolved from the sides
-        if never_behind and name in cfg.neckline_parts and len(band_pos) >= 4 * cfg.k:
+        # 4 k Gaussians (``resolved``): on a coarse model (17 band Gaussians on the whole torso, 7
+        # of them near the neck) the neckline is not resolved from the sides
+        resolved = 4 * cfg.k
+        if never_behind and name in cfg.neckline_parts and len(band_pos) >= resolved:
             neck = parts == PART_INDEX["neck"]
             if neck.any():
                 d_neck, _ = cKDTree(pos[neck]).query(band_pos)
                 far = d_neck > cfg.neckline_reach
-                if far.sum() < 4 * cfg.k:
-                    # the sides are not resolved either: the cut coat photo's torso, hidden below
+                if far.sum() < resolved:
+                    # fewer left past the neckline do not resolve the sides either: the cut coat photo's torso, hidden below
                     # the shoulders by the layer and the folded arms, kept 19 of 452, the white
                     # of the shirt between its lapels, and its upper back came out white
                     neckline_only.append(p)
