@@ -11,7 +11,8 @@ import torch
 from reconstruct.avatar.garment_layer import GARMENT_PART
 from reconstruct.body.parts import PART_INDEX
 from reconstruct.appearance.hair import hair_sources
-from reconstruct.appearance.wrap_fill import WrapFillConfig, column_middle, height_profile, wrap_fill_colors
+from reconstruct.appearance.wrap_fill import (WrapFillConfig, _left_right_mirror, column_middle, height_profile,
+                                              wrap_fill_colors)
 
 RED, WHITE, BLUE, SKIN, HAIR, YELLOW, GREEN = (np.array(c, float) for c in (
     (0.8, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.2, 0.8), (0.9, 0.7, 0.6), (0.2, 0.1, 0.05), (1.0, 0.9, 0.0),
@@ -505,7 +506,7 @@ def front_only_head(skin_sides=True):
     """A head seen up to 80 degrees from the front: at face height the seen sides are skin (the
     cheeks reach the silhouette), hair above 1.70 m all round. Returns pos, theta, seen, truth."""
     pos, th = cylinder(radius=0.09, height=0.22, n_theta=72, n_z=44, z0=1.55)
-    deg = np.abs(np.degrees(th))
+    deg = np.abs(np.degrees(th)) - 1e-9  # both columns at +-80 degrees (+80 rounds up)
     seen = deg <= 80
     skin = (pos[:, 2] < 1.70) & (deg <= 80 if skin_sides else deg < 50)
     return pos, th, seen, np.where(skin[:, None], SKIN, HAIR)
@@ -623,6 +624,55 @@ def test_front_only_head_reads_its_hair_from_the_less_eroded_flags():
     assert np.linalg.norm(with_ring[low_back] - HAIR, axis=1).max() < 0.05
     # the trusted Gaussians keep their colours; the hair ring is filled like any untrusted one
     np.testing.assert_allclose(with_ring[trusted], col[trusted].astype(np.float32), atol=1e-6)
+
+
+def test_a_turned_faces_far_cheek_takes_the_near_cheek_mirrored():
+    """A photo of a face turned from the camera sees one cheek to the ear and the other not at
+    all. Left to the band and the hair rule, the far cheek took the hair beside it (a black cheek
+    from the side on five of seven photos); mirrored left-right through the head's midline it
+    takes the near cheek's skin, and the far temple the near temple's hair."""
+    pos, th, _, _ = front_only_head()
+    deg = np.degrees(th)
+    skin = (pos[:, 2] < 1.70) & (np.abs(deg) <= 70)
+    truth = np.where(skin[:, None], SKIN, HAIR)
+    seen = (deg >= -85) & (deg <= 30)
+    parts = np.full(len(pos), PART_INDEX["head"])
+    col = np.where(seen[:, None], truth, 0.5)
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    low = (pos[:, 2] > 1.57) & (pos[:, 2] < 1.67)
+    cheek = ~seen & low & (deg > 38) & (deg < 62)
+    temple = ~seen & low & (deg > 76) & (deg < 88)
+    back = np.abs(deg) > 110
+    assert cheek.sum() > 20 and temple.sum() > 10
+    assert np.linalg.norm(out[cheek] - SKIN, axis=1).max() < 0.05
+    assert np.linalg.norm(out[temple] - HAIR, axis=1).max() < 0.05
+    assert np.linalg.norm(out[back] - HAIR, axis=1).max() < 0.05
+    np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
+    # without the mirror the far cheek takes the hair: the case is real
+    off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(face_mirror_parts=())).numpy()
+    assert np.linalg.norm(off[cheek] - HAIR, axis=1).mean() < 0.1
+
+
+def test_left_right_mirror_reads_the_seen_side_in_front_only():
+    """``_left_right_mirror`` against a direct reading: the median of the seen Gaussians within
+    reach of the mirror image (x -> 2 cx - x), at least 2 of them; NaN behind the centre or with
+    fewer than 2 in reach."""
+    rng = np.random.default_rng(3)
+    src = rng.uniform(-0.05, 0.05, (3000, 3)) + np.array([0.04, -0.02, 0.0])
+    src_col = rng.uniform(0, 1, (3000, 3))
+    todo = rng.uniform(-0.05, 0.05, (300, 3))
+    cx, cy, reach = 0.01, 0.0, 0.006
+    got = _left_right_mirror(todo, src, src_col, cx, cy, reach, k=4)
+    for t, g in zip(todo, got):
+        q = np.array([2 * cx - t[0], t[1], t[2]])
+        d = np.linalg.norm(src - q, axis=1)
+        near = np.argsort(d)[:4]
+        near = near[d[near] <= reach]
+        if t[1] >= cy or len(near) < 2:
+            assert np.isnan(g).all()
+        else:
+            np.testing.assert_allclose(g, np.median(src_col[near], axis=0), atol=1e-12)
+    assert np.isfinite(got[:, 0]).sum() > 30 and np.isnan(got[:, 0]).sum() > 30
 
 
 def test_front_only_head_band_is_behind_the_centre_not_the_face_sides():

@@ -38,6 +38,9 @@ positions (the body faces -Y, +Z up):
    coronal plane) when the head shows hair of its own colour (``hair.py``). Seen from the front
    only (never seen behind its centre: ``behind_share``), the back and the crown take the
    hair's colour instead, when the front shows hair (else the posterior band, if it has ``k``).
+   The head's unseen front (a face turned from the camera: its far cheek) takes instead the seen
+   colours at its mirror image across the head's midline, left to right (``face_mirror_parts``):
+   a face is nearly symmetric, and the hair beside it is not its cheek.
 4. **Smoothing.** A few Jacobi sweeps over the UV grid of the unseen Gaussians (seen ones fixed)
    remove single-texel noise from the median choices. Before them, on a part the video never saw
    behind its centre, whose back has no evidence of a pattern of its own, each unseen Gaussian
@@ -197,6 +200,14 @@ class WrapFillConfig:
     # parts whose front is not continued by mirroring (step 3 off): the head (the face is the
     # front's own; the back is the hair of the crown and sides) and the feet (the toe cap)
     no_mirror_parts: tuple[str, ...] = ("head", "foot.L", "foot.R")
+    # parts whose unseen front takes its seen other side's colours, mirrored left-right through
+    # the part's midline (``_left_right_mirror``): a face is nearly symmetric, and a face turned
+    # from the camera hides its far cheek. Left to the band and the hair rule, that cheek took
+    # the hair beside it: from the side, five of seven photos' faces showed a black or brown
+    # cheek. Only in front of the part's centre and only where the mirror image lies within
+    # ``face_mirror_reach`` metres of at least 2 seen Gaussians of the part
+    face_mirror_parts: tuple[str, ...] = ("head",)
+    face_mirror_reach: float = 0.008
     # Seen at grazing incidence is not seen well: a seen Gaussian whose canonical normal makes more
     # than this angle with the direction the video saw the body from (the mean normal of the seen
     # Gaussians) is repainted like an unseen one and is no colour source. Stage I's colours darken
@@ -432,6 +443,26 @@ def _never_seen_behind(pos: np.ndarray, members: np.ndarray, src: np.ndarray, vi
         behind &= surf[src, 1] > 0
     behind_visible = (pos[members, 1] > centre_y) & visible[members]
     return bool(behind.sum() < max(cfg.k, cfg.behind_share * behind_visible.sum()))
+
+
+def _left_right_mirror(todo_pos: np.ndarray, src_pos: np.ndarray, src_col: np.ndarray, centre_x: float,
+                       centre_y: float, reach: float, k: int = 4) -> np.ndarray:
+    """(T,3): for each unseen Gaussian in front of the part's centre (y below ``centre_y``; the
+    body faces -Y) the per-channel median colour of the seen Gaussians (``src_pos``,
+    ``src_col``) within ``reach`` of its mirror image across the plane x = ``centre_x`` (at most
+    the ``k`` nearest, at least 2); NaN elsewhere (``WrapFillConfig.face_mirror_parts``)."""
+    out = np.full((len(todo_pos), 3), np.nan)
+    front = np.flatnonzero(todo_pos[:, 1] < centre_y)
+    if len(front) == 0 or len(src_pos) < 2:
+        return out
+    query = todo_pos[front] * np.array([-1.0, 1.0, 1.0]) + np.array([2 * centre_x, 0.0, 0.0])
+    k = min(k, len(src_pos))
+    dist, idx = cKDTree(src_pos).query(query, k=k, distance_upper_bound=reach)
+    near = np.isfinite(dist)
+    enough = near.sum(1) >= 2
+    for row in np.flatnonzero(enough):
+        out[front[row]] = np.median(src_col[idx[row][near[row]]], axis=0)
+    return out
 
 
 def _front_hair_palette(pos: np.ndarray, col: np.ndarray, parts: np.ndarray, seen: np.ndarray,
@@ -755,6 +786,19 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                                               cfg.hair_slab, cfg.k)
             else:
                 low[covered] = _same_height_median(pos[todo][covered], pos[hsrc][hair], col[hsrc][hair], cfg)
+        if name in cfg.face_mirror_parts and cfg.face_mirror_reach > 0:
+            # read on the flags before erosion (``row_seen``; else ``hair_seen``): a photo's seen
+            # flags on a face are dotted, and the grey-skirt photo's head kept 211 of its 1,664
+            # seen Gaussians eroded by 2 texels, 538 by 1
+            msrc = src
+            for flags in (row_seen, hair_seen):
+                if flags is not None:
+                    msrc = members[flags[members]]
+                    break
+            across = _left_right_mirror(pos[todo], pos[msrc], col[msrc], pos[members, 0].mean(), centre_y,
+                                        cfg.face_mirror_reach)
+            found = np.isfinite(across[:, 0])
+            low[found] = across[found]
         # 3. the mirrored colour, kept where the band shows that colour at a nearby height
         query = pos[todo].copy()
         middle = centre_y
