@@ -635,11 +635,19 @@ def test_a_turned_faces_far_cheek_takes_the_near_cheek_mirrored():
     deg = np.degrees(th)
     skin = (pos[:, 2] < 1.70) & (np.abs(deg) <= 70)
     truth = np.where(skin[:, None], SKIN, HAIR)
+    # an eye on each side, 35-45 degrees out
+    eye = (np.abs(np.abs(deg) - 40) < 6) & (np.abs(pos[:, 2] - 1.65) < 0.008)
+    truth[eye] = HAIR
     seen = (deg >= -85) & (deg <= 30)
     parts = np.full(len(pos), PART_INDEX["head"])
     col = np.where(seen[:, None], truth, 0.5)
     out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
     low = (pos[:, 2] > 1.57) & (pos[:, 2] < 1.67)
+    # the far eye's middle is the near eye's colour: the front-only median leaves the mirror alone
+    far_eye = eye & (np.abs(deg - 40) < 1) & (np.abs(pos[:, 2] - 1.65) < 0.003)
+    assert far_eye.sum() >= 1
+    assert np.linalg.norm(out[far_eye] - HAIR, axis=1).max() < 0.05
+    low &= ~(np.abs(pos[:, 2] - 1.65) < 0.015)  # the cheek and temple below, away from the eyes
     cheek = ~seen & low & (deg > 38) & (deg < 62)
     temple = ~seen & low & (deg > 76) & (deg < 88)
     back = np.abs(deg) > 110
