@@ -595,6 +595,30 @@ def test_front_only_heads_hair_runs_down_the_back_without_bands():
     assert np.abs(np.median(new, 0) - HAIR).max() < 0.08  # still the hair's colour
 
 
+def test_front_only_heads_hair_where_the_rim_holds_few_strands_is_the_hair_round_it():
+    """At ear height a photo's rim holds few hair Gaussians (the ears take the sides), and a lit
+    strand among them drew a light line across the back of the grey-skirt photo's dark hair. The
+    profile takes at least ``hair_profile_share`` of the hair Gaussians, the nearest in height:
+    where the rim is sparse it reaches the hair above and below."""
+    pos, th, seen, truth = front_only_head(skin_sides=False)
+    deg = np.abs(np.degrees(th))
+    lit = np.array([0.45, 0.3, 0.2])
+    ears = (deg > 50) & (pos[:, 2] > 1.57) & (pos[:, 2] < 1.68)
+    truth[ears] = SKIN
+    few = ears & (deg > 70) & (deg < 80) & (np.round((pos[:, 2] - 1.55) / 0.22 * 43) % 3 == 0)
+    truth[few] = lit  # a lit strand at a few heights between the ears' skin
+    parts = np.full(len(pos), PART_INDEX["head"])
+    col = np.where(seen[:, None], truth, 0.5)
+    back = ~seen & (deg > 120) & (np.abs(pos[:, 2] - 1.625) < 0.006)
+    cfg = WrapFillConfig(smooth_sweeps=0, front_only_median=0)
+    new = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    old = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(smooth_sweeps=0, front_only_median=0,
+                                                                      hair_profile_share=0.0)).numpy()
+    assert few.sum() >= 8 and back.sum() > 20
+    assert np.linalg.norm(old[back] - lit, axis=1).mean() < 0.1  # the line
+    assert np.linalg.norm(new[back] - HAIR, axis=1).max() < 0.05
+
+
 def test_height_profile_against_a_brute_force_reference():
     rng = np.random.default_rng(7)
     zs, cs = rng.uniform(0, 1, 300), rng.uniform(0, 1, (300, 3))

@@ -236,8 +236,14 @@ class WrapFillConfig:
     # this height of it (at least ``k``, the nearest in height), both sides of the head pooled --
     # not of the ``k`` nearest at its height: hair runs down, so what changes from height to height
     # on a photo's rim (a lit strand, a shadowed one) drew horizontal bands across the back of the
-    # head (the red-dress photo). 0: the ``k`` nearest at the same height
+    # head (the red-dress photo). 0: the ``k`` nearest at the same height. 3 cm still left a light
+    # line across the back of the grey-skirt photo's dark hair at ear height, where the rim holds
+    # few hair Gaussians and some lit ones (the profile there 0.21 0.14 0.09, 0.06-0.11 above and
+    # below); 6 cm evens it out, and a hat over hair keeps its edge (the test of that)
     hair_slab: float = 0.03
+    # ... and at least this share of the hair Gaussians (the nearest in height) where fewer lie
+    # within ``hair_slab``
+    hair_profile_share: float = 0.2
     # which of the head's two colour clusters is the face: the one nearer to the seen hands' skin
     # when they tell (``hair.skin_reference``; the middle's vote otherwise). The red-dress photo's
     # middle voted for her shadowed hair, and the back of her head came out skin-coloured
@@ -784,8 +790,9 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             low = _same_height_median(pos[todo], band_pos, band_col, cfg, seen_row=seen_row)
         if covered is not None and covered.any():
             if cfg.hair_slab > 0:
+                fewest = max(cfg.k, int(np.ceil(cfg.hair_profile_share * hair.sum())))
                 low[covered] = height_profile(pos[todo][covered, 2], pos[hsrc][hair][:, 2], col[hsrc][hair],
-                                              cfg.hair_slab, cfg.k)
+                                              cfg.hair_slab, fewest)
             else:
                 low[covered] = _same_height_median(pos[todo][covered], pos[hsrc][hair], col[hsrc][hair], cfg)
         if name in cfg.face_mirror_parts and cfg.face_mirror_reach > 0:
