@@ -236,13 +236,13 @@ class WrapFillConfig:
     # this height of it (at least ``k``, the nearest in height), both sides of the head pooled --
     # not of the ``k`` nearest at its height: hair runs down, so what changes from height to height
     # on a photo's rim (a lit strand, a shadowed one) drew horizontal bands across the back of the
-    # head (the red-dress photo). 0: the ``k`` nearest at the same height. 3 cm still left a light
-    # line across the back of the grey-skirt photo's dark hair at ear height, where the rim holds
-    # few hair Gaussians and some lit ones (the profile there 0.21 0.14 0.09, 0.06-0.11 above and
-    # below); 6 cm evens it out, and a hat over hair keeps its edge (the test of that)
+    # head (the red-dress photo). 0: the ``k`` nearest at the same height
     hair_slab: float = 0.03
     # ... and at least this share of the hair Gaussians (the nearest in height) where fewer lie
-    # within ``hair_slab``
+    # within ``hair_slab``. The slab alone left a light line across the back of the grey-skirt
+    # photo's dark hair at ear height, where the rim holds few hair Gaussians, some of them lit
+    # (the profile there 0.21 0.14 0.09, 0.06-0.11 above and below). A wider slab everywhere
+    # (4.5 or 6 cm) smeared a thin hat over hair into the hair below
     hair_profile_share: float = 0.2
     # which of the head's two colour clusters is the face: the one nearer to the seen hands' skin
     # when they tell (``hair.skin_reference``; the middle's vote otherwise). The red-dress photo's
