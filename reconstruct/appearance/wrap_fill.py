@@ -465,10 +465,11 @@ def _left_right_mirror(todo_pos: np.ndarray, src_pos: np.ndarray, src_col: np.nd
     query = todo_pos[front] * np.array([-1.0, 1.0, 1.0]) + np.array([2 * centre_x, 0.0, 0.0])
     k = min(k, len(src_pos))
     dist, idx = cKDTree(src_pos).query(query, k=k, distance_upper_bound=reach)
+    dist, idx = dist.reshape(len(front), k), idx.reshape(len(front), k)
     near = np.isfinite(dist)
     enough = near.sum(1) >= 2
-    for row in np.flatnonzero(enough):
-        out[front[row]] = np.median(src_col[idx[row][near[row]]], axis=0)
+    cols = np.where(near[..., None], src_col[np.minimum(idx, len(src_pos) - 1)], np.nan)  # misses: NaN
+    out[front[enough]] = np.nanmedian(cols[enough], axis=1)
     return out
 
 
@@ -799,11 +800,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             # read on the flags before erosion (``row_seen``; else ``hair_seen``): a photo's seen
             # flags on a face are dotted, and the grey-skirt photo's head kept 211 of its 1,664
             # seen Gaussians eroded by 2 texels, 538 by 1
-            msrc = src
-            for flags in (row_seen, hair_seen):
-                if flags is not None:
-                    msrc = members[flags[members]]
-                    break
+            flags = row_seen if row_seen is not None else hair_seen
+            msrc = src if flags is None else members[flags[members]]
             across = _left_right_mirror(pos[todo], pos[msrc], col[msrc], pos[members, 0].mean(), centre_y,
                                         cfg.face_mirror_reach)
             found = np.isfinite(across[:, 0])
