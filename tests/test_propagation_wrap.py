@@ -1095,6 +1095,30 @@ def test_front_only_torso_band_leaves_out_the_neckline():
     assert np.abs(old - SKIN).max(1).mean() < 0.05  # the case is real
 
 
+def test_front_only_torso_band_judges_both_sides_without_the_neckline():
+    # hair over one side of a dress's chest, lit near the skin's colour (the red-dress photo: the
+    # lit blonde strands are not in the hair's palette), and the skin of the open collar on the
+    # other side, by the neck. Compared round the sides before the neckline was left out, the lit
+    # strands matched the collar's skin and stayed in the band when the skin went: the upper back
+    # on the strands' side took them, a light blotch. Judged on the band without the neckline,
+    # they are on one side only, and the back is the dress's red
+    pos, parts, seen, n_tube = _torso_and_neck(40)
+    deg = np.degrees(np.arctan2(pos[:, 0], -pos[:, 1]))
+    z = pos[:, 2]
+    tube = np.arange(len(pos)) < n_tube
+    col = np.tile(RED, (len(pos), 1))
+    col[tube & (deg > 5) & (z > 1.38)] = SKIN  # the collar open on one side, within neckline_reach
+    lit = SKIN + np.array([0.05, 0.08, 0.0])
+    col[tube & (deg < -5) & (z > 1.2) & (z < 1.34)] = lit  # strands past neckline_reach
+    back = tube & (pos[:, 1] > 0.05) & (z > 1.2) & (z < 1.34)
+    out = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(front_only_median=0, smooth_sweeps=0)).numpy()
+    assert np.abs(out[back] - RED).max() < 1e-6
+    # the case is real: with the collar's skin read as a colour of the cloth, the strands pass
+    with_neck = wrap_fill_colors(pos, parts, seen, col, None,
+                                 WrapFillConfig(front_only_median=0, smooth_sweeps=0, neckline_parts=())).numpy()
+    assert (np.abs(with_neck[back] - RED).max(1) > 0.1).mean() > 0.2
+
+
 def test_front_only_torso_with_only_a_neckline_band_takes_its_neighbours():
     # an open jacket's torso, a photo: the jacket (its own layer and sleeves) hides the torso but
     # for the shirt between its lapels, next to the neck. All of the torso's band lies within

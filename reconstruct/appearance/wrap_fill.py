@@ -689,12 +689,6 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             in_band = np.ones(len(src), bool)
         band_idx = np.flatnonzero(in_band)  # into src
         band_pos, band_col = src_pos[band_idx], col[src][band_idx]
-        # colours the garment shows round BOTH sides: a band Gaussian is kept when the band of the
-        # other side (left/right of the part's centre) shows its colour at a nearby height; a
-        # front-only detail that reaches one side (an off-centre emblem) is dropped from the band
-        both = _on_both_sides(band_pos, band_col, pos[members, 0].mean(), cfg)
-        if both.sum() >= cfg.k:
-            band_idx, band_pos, band_col = band_idx[both], band_pos[both], band_col[both]
         # the neckline left out of a torso's band (``neckline_parts``); only with a band of at least
         # 4 k Gaussians (``resolved``): on a coarse model (17 band Gaussians on the whole torso, 7
         # of them near the neck) the neckline is not resolved from the sides
@@ -711,6 +705,15 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                     neckline_only.append(p)
                     continue  # left to the fallback below: the neighbouring parts' colours
                 band_idx, band_pos, band_col = band_idx[far], band_pos[far], band_col[far]
+        # colours the garment shows round BOTH sides: a band Gaussian is kept when the band of the
+        # other side (left/right of the part's centre) shows its colour at a nearby height; a
+        # front-only detail that reaches one side (an off-centre emblem) is dropped from the band.
+        # Judged after the neckline is left out: on the red-dress photo the lit blonde strands over
+        # one side of the chest matched the open collar's skin on the other, stayed when the skin
+        # went, and painted a light blotch on the upper back (283 of its Gaussians)
+        both = _on_both_sides(band_pos, band_col, pos[members, 0].mean(), cfg)
+        if both.sum() >= cfg.k:
+            band_idx, band_pos, band_col = band_idx[both], band_pos[both], band_col[both]
         covered = None
         if posterior:
             behind = band_pos[:, 1] > centre_y
