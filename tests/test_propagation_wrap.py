@@ -3,6 +3,8 @@ a striped cylinder with a front emblem (the back gets the stripes at the right h
 the emblem), checks that vary left-right (the back continues them with their phase), and a head
 with a face in front and hair at the sides (the back gets hair, not skin)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -1291,6 +1293,37 @@ def test_hair_falling_over_a_photos_shoulders_is_not_carried_round_the_back():
     off_round = wrap_fill_colors(pos, parts, seen_round, col_round, None, WrapFillConfig(hair_over_parts=())).numpy()
     np.testing.assert_allclose(round_[back], off_round[back], atol=1e-6)
     assert np.abs(round_[upper_back] - HAIR).max(1).mean() < 0.1
+
+
+def test_the_back_behind_hair_over_a_photos_chest_is_not_mirrored_from_the_hairs_edge():
+    """Strands over one side of a red dress's chest, seen from the front only, edged by cloth
+    blended with them (a light red, like the satin's sheen down the sides). The strands are no
+    source; the mirror of the back behind them found the blended edge beside them, whose colour the
+    sheen let through the palette gate, and painted a light patch there (the red-dress photo
+    trained again). Its image lies nearer the hair than any source: the back takes the band's red."""
+    head, _, head_seen, head_truth = front_only_head()
+    torso, th = cylinder(radius=0.15, height=0.5, n_theta=96, n_z=100, z0=1.0)
+    deg = np.degrees(th)
+    upper = torso[:, 2] > 1.32
+    front = np.abs(deg) <= 85
+    light = RED + np.array([0.05, 0.2, 0.2])
+    col_t = np.tile(RED, (len(torso), 1))
+    col_t[(np.abs(deg) > 75) & (np.arange(len(torso)) % 5 == 0)] = light  # sheen down both sides
+    strands = upper & (deg > -50) & (deg < -35)
+    edge = upper & (((deg >= -56) & (deg <= -50)) | ((deg >= -35) & (deg <= -29)))
+    col_t[strands] = HAIR
+    col_t[edge] = light
+    pos = np.r_[head, torso]
+    parts = np.r_[np.full(len(head), PART_INDEX["head"]), np.full(len(torso), PART_INDEX["torso"])]
+    seen = np.r_[head_seen, front]
+    col = np.r_[np.where(head_seen[:, None], head_truth, 0.5), np.where(front[:, None], col_t, 0.5)]
+    # behind the strands' middle (its mirror image through the torso lies at -43 to -40 degrees)
+    behind = np.r_[np.zeros(len(head), bool), ~front & upper & (deg < -133) & (deg > -143)]
+    cfg = WrapFillConfig(front_only_median=0, smooth_sweeps=0)
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    assert np.abs(out[behind] - RED).max() < 1e-6
+    old = wrap_fill_colors(pos, parts, seen, col, None, dataclasses.replace(cfg, hair_over_mirror=False)).numpy()
+    assert (np.abs(old[behind] - light).max(1) < 1e-6).mean() > 0.9  # the case is real
 
 
 def test_the_hair_rule_on_a_part_with_no_seen_gaussians():
