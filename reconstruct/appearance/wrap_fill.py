@@ -47,7 +47,9 @@ positions (the body faces -Y, +Z up):
    behind its centre, whose back has no evidence of a pattern of its own, each unseen Gaussian
    takes the per-channel median of the ``front_only_median`` nearest Gaussians of its part.
    Hair a photo shows fallen over the shoulders is the front's own: on such parts the seen
-   Gaussians in the head's hair colours are no source (``hair_over_parts``).
+   Gaussians in the head's hair colours are no source (``hair_over_parts``), and the mirror of
+   step 3 gives no colour where its image lies nearer that hair than any source: the nearest
+   source there is the hair's edge, blended with the cloth (``hair_over_mirror``).
 
 A part with few seen Gaussians (under ``twin_below``, or under ``twin_share`` of its twin's)
 borrows from its left/right twin (mirrored in x); one left with fewer than ``k`` takes the
@@ -880,7 +882,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         snap = out.copy()
         for p in np.unique(parts[front_only]):
             members = np.flatnonzero(parts == p)
-            todo = members[front_only[members] & ~periodic[members] & ~layer_rows_only[members] & ~mirrored_across[members]]
+            todo = members[front_only[members] & ~periodic[members] & ~layer_rows_only[members]
+                           & ~mirrored_across[members]]
             members = members[~over_hair[members]]
             k = min(cfg.front_only_median, len(members))
             if len(todo) == 0 or k < 2:
