@@ -1347,3 +1347,66 @@ def test_the_hair_rule_on_a_part_with_no_seen_gaussians():
     a = slice(len(head) + len(torso), None)
     assert np.isfinite(out).all()
     np.testing.assert_allclose(out[a], off[a], atol=1e-6)
+
+
+def test_a_photos_throat_takes_what_the_images_show_there():
+    # a dress with an open collar, a photo with the head level: the chin hides the throat (the
+    # torso's top rows in front, unseen). The neckline is left out of the band (the back is cloth
+    # at its heights), and the throat took the band's red: a red bib under the chin once the walk
+    # lifts the head. Within ``occluded_reach`` of the neck it takes what the image shows where it
+    # lies (``occluded_colors``); farther down, and round the back, the fill stands
+    shade = np.array([0.45, 0.3, 0.22])
+    pos, parts, seen, n_tube = _torso_and_neck(70)
+    deg = np.abs(np.degrees(np.arctan2(pos[:, 0], -pos[:, 1])))
+    z = pos[:, 2]
+    tube = np.arange(len(pos)) < n_tube
+    col = np.tile(RED, (len(pos), 1))
+    col[tube & (deg < 30) & (z > 1.36)] = SKIN
+    d_neck = cKDTree(pos[parts == PART_INDEX["neck"]]).query(pos)[0]
+    throat = (parts == PART_INDEX["torso"]) & (d_neck < 0.045) & (pos[:, 1] < -0.02)  # the top's front
+    assert throat.sum() > 10
+    chest = tube & (deg < 20) & (z > 1.2) & (z < 1.3)  # hidden lower down (folded arms)
+    seen &= ~throat & ~chest
+    occluded = np.full((len(pos), 3), np.nan)
+    occluded[throat | chest] = shade
+    back = tube & (pos[:, 1] > 0.05) & (z > 1.42)
+    cfg = WrapFillConfig(front_only_median=200, smooth_sweeps=0)
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg, occluded_colors=occluded).numpy()
+    assert np.abs(out[throat] - shade).max() < 1e-6
+    assert (np.abs(out[chest] - shade).max(1) > 0.1).all()
+    assert np.abs(out[back] - RED).max() < 1e-6
+    without = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    assert np.abs(without[throat] - RED).max(1).mean() < 0.05  # the case is real
+    # a torso seen behind (a video) keeps its fill
+    round_ = np.r_[np.ones(n_tube, bool), seen[n_tube:]] & ~throat
+    kept = wrap_fill_colors(pos, parts, round_, col, None, cfg, occluded_colors=occluded).numpy()
+    assert np.array_equal(kept, wrap_fill_colors(pos, parts, round_, col, None, cfg).numpy())
+
+
+def test_a_neck_with_no_trusted_gaussians_takes_what_the_images_show_there():
+    # a photo's neck hidden by the chin: no trusted Gaussian of its own, so it took the nearest
+    # filled colour of any part (the collar's red). Given the colours the image shows where its
+    # Gaussians facing the camera project (``occluded_colors``), its front takes them -- the rest
+    # of its front the nearest of them -- and its back is left to the fallback
+    shade = np.array([0.45, 0.3, 0.22])
+    pos, parts, seen, n_tube = _torso_and_neck(70)
+    col = np.tile(RED, (len(pos), 1))
+    neck = parts == PART_INDEX["neck"]
+    occluded = np.full((len(pos), 3), np.nan)
+    read = neck & (pos[:, 1] < -0.025)  # facing the camera within 60 degrees
+    occluded[read] = shade
+    cfg = WrapFillConfig(front_only_median=0, smooth_sweeps=0)
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg, occluded_colors=occluded).numpy()
+    # the back's lower rows: the torso's filled back behind them is nearer than the front (with no
+    # head above in this scene, its top rows take the front)
+    front, back = neck & (pos[:, 1] < 0), neck & (pos[:, 1] > 0.04) & (pos[:, 2] < 1.54)
+    assert (front & ~read).any() and back.any()
+    assert np.abs(out[front] - shade).max() < 1e-6
+    assert (np.abs(out[back] - shade).max(1) > 0.1).all()
+    without = wrap_fill_colors(pos, parts, seen, col, None, cfg).numpy()
+    assert (np.abs(without[front] - shade).max(1) > 0.1).all()  # the case is real
+    off = wrap_fill_colors(pos, parts, seen, col, None, dataclasses.replace(cfg, occluded_parts=()),
+                           occluded_colors=occluded).numpy()
+    assert np.array_equal(off, without)
+    with pytest.raises(ValueError, match=r"occluded_colors must have shape \("):
+        wrap_fill_colors(pos, parts, seen, col, None, cfg, occluded_colors=occluded[:-1])

@@ -255,6 +255,8 @@ def test_pseudo_appearance_reads_stage1s_colour_sources(stage1):
     assert int(red.sum()) > 20 and bool((torso & ~trusted).any())
     colors = torch.full((model.num_gaussians, 3), 0.5)
     colors[red] = torch.tensor([1.0, 0.0, 0.0])
+    # what the images show under the tiny avatar's chin is no colour source either: left out here
+    state.occluded_colors = None
     state.colour_sources = None
     before = plan.propagated_colors(model, state, colors, nb)
     assert float(before[torso & ~trusted, 0].max()) > 0.9  # the red torso carried round
@@ -320,3 +322,47 @@ def test_cut_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1):
     assert bool(painted.any())
     assert torch.allclose(with_cut[painted], torch.tensor([0.1, 0.2, 0.7]).expand(int(painted.sum()), 3), atol=1e-6)
     assert torch.equal(with_cut[~painted], without[~painted])
+
+
+def test_occluded_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1):
+    """``AvatarState.occluded_colors`` (Stage I's finish: what the images show where a neck they
+    never show lies) are saved and loaded with the state, copied by ``frozen``, and Stage II's
+    pseudo-appearance reads them as Stage I's fill did."""
+    from reconstruct.avatar.state import AvatarState
+    from reconstruct.body.parts import PART_INDEX
+
+    state = stage1.state
+    assert state.occluded_colors is not None  # the finish read them
+    model = state.model
+    neck = torch.as_tensor(model.parts() == PART_INDEX["neck"])
+    occ = torch.full((model.num_gaussians, 3), float("nan"))
+    occ[neck] = torch.tensor([0.3, 0.6, 0.2])
+    state.occluded_colors = occ.clone()
+    d = state.state_dict()
+    other = AvatarState(state.body, state.model, state.poses)
+    other.load_state_dict(d)
+    assert torch.equal(other.occluded_colors[neck], occ[neck]) and bool(other.occluded_colors[~neck].isnan().all())
+    assert torch.equal(state.frozen().occluded_colors[neck], occ[neck])
+    d.pop("occluded_colors")  # a checkpoint from before them
+    other.load_state_dict(d)
+    assert other.occluded_colors is None
+    d["occluded_colors"] = occ[:-1]
+    with pytest.raises(ValueError, match="occluded_colors has shape"):
+        other.load_state_dict(d)
+    # a neck with no trusted Gaussian (a photo's, under the chin): its front takes them
+    from reconstruct.appearance.pseudo_appearance import pseudo_appearance
+
+    s2 = _start(stage1, _cfg())
+    nb = model.neighbours()
+    colors = torch.rand((model.num_gaussians, 3), generator=torch.Generator().manual_seed(0))
+    s2.state.colour_sources = None
+    trusted = s2.state.trusted_seen.clone()
+    trusted[neck] = False
+    front = neck & (model.base_normals.cpu()[:, 1] < 0)
+    runs = []
+    for given in (occ, None):
+        s2.state.occluded_colors = given
+        runs.append(pseudo_appearance(s2.state, trusted, colors, nb, 0, grazing_rule=False))
+    near = ((runs[0][front] - torch.tensor([0.3, 0.6, 0.2])).abs().amax(1) < 0.02).float().mean()
+    assert near > 0.8
+    assert ((runs[1][front] - torch.tensor([0.3, 0.6, 0.2])).abs().amax(1) < 0.02).float().mean() < 0.05

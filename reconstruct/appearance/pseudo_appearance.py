@@ -38,5 +38,6 @@ def pseudo_appearance(state, trusted: torch.Tensor, colors: torch.Tensor, neighb
                                no_mirror=state.edits.redone, under_layer=model_body_under_layer(model),
                                layer_grid=model.layer_grid(), hair_seen=state.trusted_sources(neighbours, min(erosion, 1)),
                                surface_normals=model.base_normals.cpu(), cut_colors=state.cut_colors,
-                               row_seen=state.trusted_sources(neighbours, 0))
+                               row_seen=state.trusted_sources(neighbours, 0),
+                               occluded_colors=state.occluded_colors)
     return torch.where((trusted & ~sources)[:, None], colors.clamp(0, 1).to(out.dtype), out)

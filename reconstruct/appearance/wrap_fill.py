@@ -53,7 +53,9 @@ positions (the body faces -Y, +Z up):
 
 A part with few seen Gaussians (under ``twin_below``, or under ``twin_share`` of its twin's)
 borrows from its left/right twin (mirrored in x); one left with fewer than ``k`` takes the
-nearest seen or already filled colours of any part.
+nearest seen or already filled colours of any part. Before that, a photo's neck and the torso's
+front by it, which the chin hides, take what the images show where they lie
+(``occluded_parts``, ``occluded_fill.py``).
 
 Parts past the body's (``parts >= len(PART_NAMES)``): a garment layer's Gaussians
 (``garment_layer.GARMENT_PART``) are filled as one more part -- its band is the seen cloth round
@@ -280,6 +282,14 @@ class WrapFillConfig:
     # ``wrap_fill_colors(cut_colors=...)``) takes the colour the images show where it crosses the
     # edge, one per limb and both limbs of a pair alike (``cut_fill``)
     cut_fill: bool = True
+    # a photo's neck and throat, which the chin hides while the images cover them: the unseen
+    # Gaussians of these parts (never seen behind their centre) that face the front within
+    # ``occluded_reach`` of the neck take what the images show where they project (given
+    # ``wrap_fill_colors(occluded_colors=...)``): the throat's skin, a turtleneck's white. Without
+    # it the neck (0-14 trusted Gaussians on seven photos) took the nearest filled colour of any
+    # part and the throat the band's: a red bib under the red-dress photo's chin in the walk
+    occluded_parts: tuple[str, ...] = ("neck", "torso")
+    occluded_reach: float = 0.05  # metres from the neck
 
 
 def grazing_rule_for(stage1_settings) -> bool:
@@ -564,10 +574,51 @@ def reliable_seen(seen: np.ndarray, normals: np.ndarray | None, parts: np.ndarra
     return seen & ok
 
 
+def _facing_front(pos: np.ndarray, surf: np.ndarray | None, idx: np.ndarray, centre_y: float) -> np.ndarray:
+    """(len(idx),) bool: which of the Gaussians ``idx`` lie on the front of the body (the avatar
+    faces -y): their surface normal points forwards when ``surf`` (N,3) is given, else they lie in
+    front of ``centre_y``. On a torso the normal tells: its upper back by the neck lies ahead of
+    the torso's mean depth."""
+    if surf is not None:
+        return surf[idx, 1] < 0
+    return pos[idx, 1] < centre_y
+
+
+def _from_the_images(out: np.ndarray, filled: np.ndarray, from_images: np.ndarray, pos: np.ndarray,
+                     parts: np.ndarray, keep: np.ndarray, surf: np.ndarray | None, occluded: np.ndarray,
+                     cfg: WrapFillConfig) -> None:
+    """``WrapFillConfig.occluded_parts``, in place: the Gaussians of those parts not in ``keep``
+    that face the front within ``occluded_reach`` of the neck take their ``occluded`` colour where
+    they have one, and the rest of them the nearest of those; each part on its own."""
+    neck = parts == PART_INDEX["neck"]
+    if not neck.any():
+        return
+    tree = cKDTree(pos[neck])
+    for name in cfg.occluded_parts:
+        p = PART_INDEX.get(name, -1)
+        members = np.flatnonzero((parts == p) & ~keep)
+        if len(members) == 0:
+            continue
+        near = tree.query(pos[members])[0] <= cfg.occluded_reach
+        todo = members[near & _facing_front(pos, surf, members, pos[parts == p, 1].mean())]
+        read = np.isfinite(occluded[todo]).all(1)
+        got = todo[read]
+        if len(got) == 0:
+            continue
+        out[got] = occluded[got]
+        rest = todo[~read]
+        if len(rest):
+            _, nn = cKDTree(pos[got]).query(pos[rest])
+            out[rest] = occluded[got[nn]]
+        filled[todo] = True
+        from_images[todo] = True
+
+
 def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | None = None,
                      config: WrapFillConfig = WrapFillConfig(), normals=None, no_mirror=None,
                      under_layer=None, layer_grid: tuple[int, int, int] | None = None,
-                     hair_seen=None, surface_normals=None, cut_colors=None, row_seen=None) -> torch.Tensor:
+                     hair_seen=None, surface_normals=None, cut_colors=None, row_seen=None,
+                     occluded_colors=None) -> torch.Tensor:
     """(N,3) float32 colours: the reliably seen Gaussians' own, the others (unseen, or seen only
     at grazing incidence when ``normals`` are given) filled as described in the module docstring.
     ``positions``, ``normals``: canonical (N,3); ``parts``: (N,) body-part indices; ``seen``: (N,)
@@ -617,6 +668,11 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     surf = None if surface_normals is None else _as_np(surface_normals)
     if surf is not None and surf.shape != (len(pos), 3):
         raise ValueError(f"wrap_fill_colors: surface_normals must have shape ({len(pos)}, 3), found {surf.shape}")
+    occluded = None
+    if occluded_colors is not None:
+        occluded = _as_np(occluded_colors)
+        if occluded.shape != (len(pos), 3):
+            raise ValueError(f"wrap_fill_colors: occluded_colors must have shape ({len(pos)}, 3), found {occluded.shape}")
     ul = None
     if under_layer is not None:
         ul = np.asarray(under_layer, np.int64)
@@ -642,6 +698,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                                        visible, surf)
     over_hair = np.zeros(len(pos), bool)  # seen Gaussians in the hair's colour that are no source
     mirrored_across = np.zeros(len(pos), bool)  # a face's unseen front given its other side (``face_mirror_parts``)
+    from_images = np.zeros(len(pos), bool)  # unseen Gaussians given what the images show there (``occluded_parts``)
     for p in np.unique(parts):
         members = np.flatnonzero(parts == p)
         todo = members[~seen[members]]
@@ -864,6 +921,11 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             _, idx = cKDTree(pos[other]).query(pos[own])
             out[own] = out[other[idx]]
             filled[own] = True
+    # the front of a photo's neck and of the parts round it, where the images cover it and never
+    # show it (``occluded_parts``): what they show where it lies. After the parts above, so that a
+    # torso filled from its neighbours does not take the neck's skin
+    if occluded is not None and cfg.occluded_parts:
+        _from_the_images(out, filled, from_images, pos, parts, ~front_only, surf, occluded, cfg)
     rest = np.flatnonzero(~seen & ~filled)
     if len(rest):
         # the nearest seen or already filled Gaussian of any part: the back of a neck a photo's
@@ -883,8 +945,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         for p in np.unique(parts[front_only]):
             members = np.flatnonzero(parts == p)
             todo = members[front_only[members] & ~periodic[members] & ~layer_rows_only[members]
-                           & ~mirrored_across[members]]
-            members = members[~over_hair[members]]
+                           & ~mirrored_across[members] & ~from_images[members]]
+            members = members[~over_hair[members] & ~from_images[members]]
             k = min(cfg.front_only_median, len(members))
             if len(todo) == 0 or k < 2:
                 continue

@@ -65,6 +65,11 @@ class AvatarState:
         # NaN for the others; set by Stage I's finish, given to the fills (``appearance/cut_fill``).
         # None: not counted (runs from before it)
         self.cut_colors: torch.Tensor | None = None
+        # (N,3) float: for the Gaussians of a part the images cover but never show (a photo's neck
+        # under the chin) the colour the images show where they project, NaN for the others; set by
+        # Stage I's finish, given to the fills (``appearance/occluded_fill``). None: not read (runs
+        # from before it)
+        self.occluded_colors: torch.Tensor | None = None
         self.edits = EditList((), model.num_gaussians)
         self._transforms: dict[int, torch.Tensor] = {}
         self._articulations: dict[int, torch.Tensor] = {}
@@ -230,6 +235,7 @@ class AvatarState:
         f._trusted_seen = None if self._trusted_seen is None else self._trusted_seen.clone()
         f.colour_sources = None if self.colour_sources is None else self.colour_sources.clone()
         f.cut_colors = None if self.cut_colors is None else self.cut_colors.clone()
+        f.occluded_colors = None if self.occluded_colors is None else self.occluded_colors.clone()
         f.edits = self.edits  # immutable
         f._transforms = dict(self._transforms)
         f._articulations = dict(self._articulations)
@@ -243,7 +249,8 @@ class AvatarState:
                "seen": self.seen.clone(),
                "trusted_seen": None if self._trusted_seen is None else self._trusted_seen.clone(),
                "colour_sources": None if self.colour_sources is None else self.colour_sources.clone(),
-               "cut_colors": None if self.cut_colors is None else self.cut_colors.clone()}
+               "cut_colors": None if self.cut_colors is None else self.cut_colors.clone(),
+               "occluded_colors": None if self.occluded_colors is None else self.occluded_colors.clone()}
         if self.model.layer is not None:
             out["garment_layer"] = self.model.layer.to_state()
         return out
@@ -272,11 +279,16 @@ class AvatarState:
             raise ValueError(f"the avatar state's colour_sources has shape {tuple(cs.shape)}; "
                              f"its seen flags have {tuple(self.seen.shape)}")
         self.colour_sources = None if cs is None else cs.clone().bool()
-        cc = state.get("cut_colors")  # absent in checkpoints from before it: not counted
+        self.cut_colors = self._colours_in(state, "cut_colors")  # absent in checkpoints from before it
+        self.occluded_colors = self._colours_in(state, "occluded_colors")
+
+    def _colours_in(self, state: dict, key: str) -> torch.Tensor | None:
+        """``state[key]``, one colour per Gaussian (NaN where none), checked; None where absent."""
+        cc = state.get(key)
         if cc is not None and tuple(cc.shape) != (len(self.seen), 3):
-            raise ValueError(f"the avatar state's cut_colors has shape {tuple(cc.shape)}; "
+            raise ValueError(f"the avatar state's {key} has shape {tuple(cc.shape)}; "
                              f"expected ({len(self.seen)}, 3), one colour per Gaussian")
-        self.cut_colors = None if cc is None else cc.clone().float()
+        return None if cc is None else cc.clone().float()
 
     def replace_model(self, model: AvatarModel) -> None:
         """Train ``model`` from now on (a model with a different garment layer, before a checkpoint
@@ -286,6 +298,7 @@ class AvatarState:
         self._trusted_seen = None
         self.colour_sources = None
         self.cut_colors = None
+        self.occluded_colors = None
         self.edits = EditList((), model.num_gaussians)
 
     @torch.no_grad()

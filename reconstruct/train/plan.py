@@ -16,7 +16,7 @@ from ..avatar.layer_depth import match_layer_depth
 from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, layer_reached, layer_through,
-                          layer_training_views)
+                          layer_training_views, occluded_colors_of)
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
 # which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its
@@ -107,6 +107,8 @@ class Stage1Plan(StagePlan):
             past = int(torch.isfinite(state.cut_colors).all(1).sum())
             if past:
                 notes.append(f"{past} Gaussians in no training image take the colours where their limbs cross the frame's edge")
+            # a part the images cover but never show (a photo's neck under the chin): what they show there
+            state.occluded_colors = occluded_colors_of(state, context.data)
             # the layer's opacity first: the colours of the body under the cloth follow the cloth
             # where it is opaque (``layer_cover``)
             n_layer, ring_trained = 0, None

@@ -46,8 +46,9 @@ import torch
 from scipy.ndimage import binary_dilation
 
 from ..appearance.cut_fill import FrameView, cut_colors
+from ..appearance.occluded_fill import occluded_colors
 from ..appearance.propagation import erode, erode_by_part
-from ..appearance.wrap_fill import wrap_fill_colors
+from ..appearance.wrap_fill import WrapFillConfig, wrap_fill_colors
 from ..avatar.garment_layer import spread_frames
 from ..avatar.layer_cover import model_body_under_layer
 from ..avatar.layer_through import model_layer_shows_body, model_layer_shows_limbs
@@ -94,7 +95,7 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
                               under_layer=model_body_under_layer(model), layer_grid=model.layer_grid(),
                               hair_seen=torch.as_tensor(erode(sources.numpy(), neighbours, min(erosion, 1))),
                               surface_normals=model.base_normals.cpu(), cut_colors=state.cut_colors,
-                              row_seen=sources)
+                              row_seen=sources, occluded_colors=state.occluded_colors)
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
     if ring_trained is not None:
         ring_trained = torch.as_tensor(ring_trained, dtype=torch.bool).cpu()
@@ -149,6 +150,25 @@ def cut_colors_of(state: AvatarState, data: TrainingData, *, edge_share: float =
     cam = data.scene.frames[data.frames[0]].camera
     return torch.as_tensor(cut_colors(state.model.parts(), beyond, _frame_views(state, data),
                                       edge_px=edge_share * max(cam.width, cam.height)))
+
+
+@torch.no_grad()
+def occluded_colors_of(state: AvatarState, data: TrainingData, *,
+                       parts: tuple[str, ...] = WrapFillConfig.occluded_parts,
+                       max_frames: int = 16) -> torch.Tensor:
+    """(N+M,3) float32: ``appearance.occluded_fill.occluded_colors`` for the Gaussians of ``parts``
+    on up to ``max_frames`` training frames spread over the sequence (each frame's whole image; the
+    surface normals posed with the frame), NaN for the others."""
+    def views():
+        for i in spread_frames(list(data.frames), max_frames):
+            f = data.scene.frames[i]
+            posed, normals = state.posed_with_surface_normals(i)
+            means = posed.means.detach().cpu().double()
+            uv, z = f.camera.project(means.numpy())
+            to_cam = torch.as_tensor(f.camera.center, dtype=means.dtype) - means
+            cos = (to_cam * normals.detach().cpu().double()).sum(1) / to_cam.norm(dim=1).clamp_min(1e-9)
+            yield FrameView(uv, z > 0, f.image, f.mask), cos.numpy()
+    return torch.as_tensor(occluded_colors(state.model.parts(), views(), part_names=parts))
 
 
 @torch.no_grad()
