@@ -286,11 +286,31 @@ def test_colour_sources_round_trip_through_the_state_dict(stage1):
         other.load_state_dict(d)
 
 
+def _colours_round_trip(state, key: str, colours: torch.Tensor, where: torch.Tensor) -> None:
+    """Per-Gaussian colours of the state (``key``: ``cut_colors``, ``occluded_colors``; NaN but
+    ``where``) are saved and loaded with it and copied by ``frozen``; a checkpoint without them
+    (from before them) loads None, one of the wrong shape is refused."""
+    from reconstruct.avatar.state import AvatarState
+
+    setattr(state, key, colours.clone())
+    d = state.state_dict()
+    other = AvatarState(state.body, state.model, state.poses)
+    other.load_state_dict(d)
+    got = getattr(other, key)
+    assert torch.equal(got.isnan(), colours.isnan()) and torch.equal(got[where], colours[where])
+    assert torch.equal(getattr(state.frozen(), key)[where], colours[where])
+    d.pop(key)
+    other.load_state_dict(d)
+    assert getattr(other, key) is None
+    d[key] = colours[:-1]
+    with pytest.raises(ValueError, match=f"{key} has shape"):
+        other.load_state_dict(d)
+
+
 def test_cut_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1):
     """``AvatarState.cut_colors`` (Stage I's finish: the colours for the Gaussians in no training
     image) are saved and loaded with the state, copied by ``frozen``, and Stage II's
     pseudo-appearance paints the body past the cut with them, as Stage I's fill did."""
-    from reconstruct.avatar.state import AvatarState
     from reconstruct.body.parts import PART_INDEX
 
     state = stage1.state
@@ -299,18 +319,7 @@ def test_cut_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1):
     legs = torch.as_tensor(np.isin(model.parts(), [PART_INDEX[p] for p in ("shin.L", "shin.R", "foot.L", "foot.R")]))
     cut = torch.full((model.num_gaussians, 3), float("nan"))
     cut[legs] = torch.tensor([0.1, 0.2, 0.7])
-    state.cut_colors = cut.clone()
-    d = state.state_dict()
-    other = AvatarState(state.body, state.model, state.poses)
-    other.load_state_dict(d)
-    assert torch.equal(other.cut_colors.isnan(), cut.isnan()) and torch.equal(other.cut_colors[legs], cut[legs])
-    assert torch.equal(state.frozen().cut_colors[legs], cut[legs])
-    d.pop("cut_colors")  # a checkpoint from before them: nothing counted out of view
-    other.load_state_dict(d)
-    assert other.cut_colors is None
-    d["cut_colors"] = cut[:-1]
-    with pytest.raises(ValueError, match="cut_colors has shape"):
-        other.load_state_dict(d)
+    _colours_round_trip(state, "cut_colors", cut, legs)  # absent: nothing counted out of view
     s2 = _start(stage1, _cfg())
     s2.state.cut_colors = cut.clone()
     plan, nb = s2.plan, model.neighbours()
@@ -328,7 +337,6 @@ def test_occluded_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1)
     """``AvatarState.occluded_colors`` (Stage I's finish: what the images show where a neck they
     never show lies) are saved and loaded with the state, copied by ``frozen``, and Stage II's
     pseudo-appearance reads them as Stage I's fill did."""
-    from reconstruct.avatar.state import AvatarState
     from reconstruct.body.parts import PART_INDEX
 
     state = stage1.state
@@ -337,18 +345,7 @@ def test_occluded_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1)
     neck = torch.as_tensor(model.parts() == PART_INDEX["neck"])
     occ = torch.full((model.num_gaussians, 3), float("nan"))
     occ[neck] = torch.tensor([0.3, 0.6, 0.2])
-    state.occluded_colors = occ.clone()
-    d = state.state_dict()
-    other = AvatarState(state.body, state.model, state.poses)
-    other.load_state_dict(d)
-    assert torch.equal(other.occluded_colors[neck], occ[neck]) and bool(other.occluded_colors[~neck].isnan().all())
-    assert torch.equal(state.frozen().occluded_colors[neck], occ[neck])
-    d.pop("occluded_colors")  # a checkpoint from before them
-    other.load_state_dict(d)
-    assert other.occluded_colors is None
-    d["occluded_colors"] = occ[:-1]
-    with pytest.raises(ValueError, match="occluded_colors has shape"):
-        other.load_state_dict(d)
+    _colours_round_trip(state, "occluded_colors", occ, neck)
     # a neck with no trusted Gaussian (a photo's, under the chin): its front takes them
     from reconstruct.appearance.pseudo_appearance import pseudo_appearance
 
