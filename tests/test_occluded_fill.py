@@ -71,3 +71,40 @@ def test_the_median_over_frames_and_the_checks():
     assert np.isnan(occluded_colors(parts, frames, part_names=("hand.L",))).all()
     with pytest.raises(ValueError, match="occluded_colors: cos has shape"):
         occluded_colors(parts, [(frames[0][0], frames[0][1][:-1])])
+
+
+def test_occluded_colors_of_reads_the_front_of_the_neck_and_the_torso(tiny_scene, tiny_config, tmp_path):
+    """``train.unseen_fill.occluded_colors_of`` on a trainer: every frame's image one colour inside
+    the person's mask, so every Gaussian read takes it; the neck's and the torso's only, and those
+    read face the frames' cameras -- the front of the body, the synthetic scene's cameras being in
+    front of it -- (posed surface normals, against the direction to the camera computed here)."""
+    from types import SimpleNamespace
+
+    from reconstruct.train.trainer import Trainer
+    from reconstruct.train.unseen_fill import occluded_colors_of
+
+    t = Trainer(tiny_scene, tiny_config, tmp_path / "run")
+    colour = np.array([0.2, 0.5, 0.7], np.float32)
+    frames = {}
+    for i in t.data.frames:
+        f = t.scene.frames[i]
+        frames[i] = SimpleNamespace(camera=f.camera, mask=f.mask, image=np.broadcast_to(colour, f.image.shape).copy())
+    data = SimpleNamespace(frames=list(t.data.frames), scene=SimpleNamespace(frames=frames))
+    out = occluded_colors_of(t.state, data).numpy()
+    parts = t.state.model.parts()
+    read = np.isfinite(out).all(1)
+    wanted = np.isin(parts, [PART_INDEX["neck"], PART_INDEX["torso"]])
+    assert read[wanted].mean() > 0.2 and not read[~wanted].any()
+    assert np.abs(out[read] - colour).max() < 1e-6
+    # the reading Gaussians face a camera within 60 degrees in some frame, by a hand computation
+    faces = np.zeros(len(parts), bool)
+    for i in data.frames:
+        posed, normals = t.state.posed_with_surface_normals(i)
+        m = posed.means.detach().double().numpy()
+        to_cam = np.asarray(frames[i].camera.center, np.float64) - m
+        cos = (to_cam * normals.detach().double().numpy()).sum(1) / np.linalg.norm(to_cam, axis=1)
+        faces |= cos >= 0.5
+    assert not (read & ~faces).any()
+    front = t.state.model.base_normals.cpu().numpy()[:, 1] < 0  # the avatar faces -y
+    assert front[read].mean() > 0.95
+    assert np.isnan(occluded_colors_of(t.state, data, parts=()).numpy()).all()
