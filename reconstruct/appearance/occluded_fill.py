@@ -1,15 +1,17 @@
-"""Colours for a part the images cover but never show: a photo's neck. With the head bent or level,
-the chin hides the throat and the torso's Gaussians draw the skin and the collar below it, so the
-neck keeps fewer trusted Gaussians than the wrap fill needs (0-14 of 1,653 on seven real photos)
-and took the nearest filled colour of any part -- the red-dress photo's collar, a red bib under
-the chin once the walk lifts the head.
+"""Colours for the parts the images cover but never show: a photo's neck and throat. With the head
+bent or level, the chin hides the throat and the torso's Gaussians draw the skin and the collar
+below it, so the neck keeps fewer trusted Gaussians than the wrap fill needs (0-14 of 1,653 on
+seven real photos) and took the nearest filled colour of any part, and the torso's front by the
+neck took its band's colour -- the red-dress photo's collar, a red bib under the chin once the
+walk lifts the head.
 
 Here each Gaussian of those parts (``WrapFillConfig.occluded_parts``) that faces a training camera
 (its surface normal within ``acos(min_cos)`` of the direction to it) and projects onto the
 person's mask takes the median, over the frames, of the image's colour round its projection:
 what the images show where it lies, whatever covers it there (the throat under the chin, a
-turtleneck's white). The wrap fill uses them only for a part with too few trusted Gaussians of
-its own; the back of such a part is left to the fill's fallback."""
+turtleneck's white). The wrap fill gives them to the unseen front of those parts within
+``occluded_reach`` of the neck, on parts never seen behind their centre; their back is left to
+the fill's fallback."""
 
 from __future__ import annotations
 
