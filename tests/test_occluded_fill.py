@@ -10,6 +10,7 @@ from reconstruct.appearance.occluded_fill import occluded_colors
 from reconstruct.body.parts import PART_INDEX
 
 H, W = 60, 40
+NECK = ("neck",)  # the parts read here; the torso beside them is not
 
 
 def _neck_and_torso():
@@ -41,7 +42,7 @@ def test_a_parts_gaussians_facing_the_camera_take_the_image_where_they_project()
     mask = np.ones((H, W), np.float32)
     mask[:, :W // 2 - 3] = 0.0  # the person's pixels stop left of x = -3 cm
     view, cos = _front_view(pos, normals, image, mask)
-    out = occluded_colors(parts, [(view, cos)])
+    out = occluded_colors(parts, [(view, cos)], part_names=NECK)
     neck = parts == PART_INDEX["neck"]
     facing = neck & (cos >= 0.5)
     on_person = np.floor(view.uv[:, 0]) >= W // 2 - 3
@@ -60,17 +61,17 @@ def test_the_median_over_frames_and_the_checks():
     mask = np.ones((H, W), np.float32)
     colours = [np.array(c) for c in ((0.2, 0.2, 0.2), (0.5, 0.4, 0.3), (0.9, 0.9, 0.9))]
     frames = [_front_view(pos, normals, c * np.ones((H, W, 3)), mask) for c in colours]
-    out = occluded_colors(parts, frames)
+    out = occluded_colors(parts, frames, part_names=NECK)
     facing = (parts == PART_INDEX["neck"]) & (frames[0][1] >= 0.5)
     assert np.abs(out[facing] - colours[1]).max() < 1e-6
     # a frame where a Gaussian turned away gives it nothing: the median of the other two
     turned = frames[2][1].copy()
     turned[:] = -1.0
-    out2 = occluded_colors(parts, frames[:2] + [(frames[2][0], turned)])
+    out2 = occluded_colors(parts, frames[:2] + [(frames[2][0], turned)], part_names=NECK)
     assert np.abs(out2[facing] - (colours[0] + colours[1]) / 2).max() < 1e-6
     assert np.isnan(occluded_colors(parts, frames, part_names=("hand.L",))).all()
     with pytest.raises(ValueError, match="occluded_colors: cos has shape"):
-        occluded_colors(parts, [(frames[0][0], frames[0][1][:-1])])
+        occluded_colors(parts, [(frames[0][0], frames[0][1][:-1])], part_names=NECK)
 
 
 def test_occluded_colors_of_reads_the_front_of_the_neck_and_the_torso(tiny_scene, tiny_config, tmp_path):

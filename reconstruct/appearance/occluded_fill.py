@@ -37,12 +37,11 @@ def _window_mean(image: np.ndarray, x: np.ndarray, y: np.ndarray, radius: int) -
 
 
 def occluded_colors(parts: np.ndarray, frames: Iterable[tuple[FrameView, np.ndarray]], *,
-                    part_names: tuple[str, ...] = ("neck",), min_cos: float = MIN_COS,
-                    radius: int = 1) -> np.ndarray:
-    """(N,3) float32, NaN but for the Gaussians of ``part_names`` that faced a camera and
-    projected onto the person in at least one frame: the per-channel median over those frames of
-    the image's mean colour over the (2 ``radius`` + 1)² pixels round the projection (module
-    docstring). ``parts``: (N,) part indices. ``frames``: (view, cos) pairs, ``cos`` (N,) the cosine
+                    part_names: tuple[str, ...], min_cos: float = MIN_COS, radius: int = 1) -> np.ndarray:
+    """(N,3) float32, NaN but for the Gaussians of ``part_names`` (the finish gives
+    ``WrapFillConfig.occluded_parts``) that faced a camera and projected onto the person in at
+    least one frame: the per-channel median over those frames of the image's mean colour over the
+    (2 ``radius`` + 1)² pixels round the projection (module docstring). ``parts``: (N,) part indices. ``frames``: (view, cos) pairs, ``cos`` (N,) the cosine
     between each Gaussian's surface normal and the direction to the frame's camera; read once."""
     parts = np.asarray(parts)
     out = np.full((len(parts), 3), np.nan, np.float32)
