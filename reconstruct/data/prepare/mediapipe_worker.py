@@ -11,12 +11,15 @@ IN.npz holds ``images`` (T,H,W,3) uint8 RGB. OUT.npz gets ``found`` (T,) bool, `
 seeded by the segmentation and the landmarks; ``refine_used`` (T,) says where the refinement was kept.
 
 ``--mode people`` finds everyone in each image instead (the legacy Pose solution tracks one person):
-detect, blank out the person found, detect again, up to ``--max-people``; an image where the whole
-frame shows nobody is searched again in square windows (``detect_one``). OUT.npz gets ``count`` (T,),
-``people`` (T,P,33,4) normalised landmarks, ``regions`` (T,P,H,W) uint8 each person's segmentation.
+detect, blank out the person found near their skeleton, detect again, up to ``--max-people``, then
+look again at the faces nobody found holds (``search_people``); an image where the whole frame shows
+nobody is searched again in square windows (``detect_one``). OUT.npz gets ``count`` (T,), ``people``
+(T,P,33,4) normalised landmarks, ``regions`` (T,P,H,W) uint8 each person's segmentation, split
+between people who touch by their skeletons (``skeleton_split.py``).
 
-This file imports only numpy and mediapipe (``mediapipe==0.10.21``, the last release whose wheel ships
-the pose and segmentation models), so it can run in a separate virtualenv with ``numpy<2`` as that
+This file imports only numpy, mediapipe (``mediapipe==0.10.21``, the last release whose wheel ships
+the pose, face and segmentation models) and its numpy-only siblings (``grabcut_refine.py`` also
+needs OpenCV, ``skeleton_split.py``), so it can run in a separate virtualenv with ``numpy<2`` as that
 release declares. It must not import the project (no torch there).
 """
 
@@ -125,6 +128,45 @@ def _box(lm, W: int, H: int) -> tuple[int, int, int, int]:
             int(min(H, y1 + 0.08 * h)))
 
 
+# the people search blanks a person's segmentation within this share of their stature (landmarks' height)
+# of their bones, and everything within the smaller share: a coat's width round the skeleton, not
+# the neighbour who touches it
+BLANK_REACH = 0.12
+CORE_REACH = 0.04
+HEAD_REACH = 0.05  # and the face bones (nose, eyes, ears): a neighbour leaning close keeps her face
+
+
+# a face nobody was found at is looked for in a square window this many face heights wide round it
+FACE_WINDOW = 9.0
+
+
+def _grown(box, share: float, W: int, H: int) -> tuple[slice, slice]:
+    """Array slices of ``box`` (x0, y0, x1, y1) grown by ``share`` of its size each way, in the image."""
+    x0, y0, x1, y1 = box
+    gx, gy = share * (x1 - x0), share * (y1 - y0)
+    return (slice(int(max(0, y0 - gy)), int(min(H, y1 + gy + 1))),
+            slice(int(max(0, x0 - gx)), int(min(W, x1 + gx + 1))))
+
+
+# a person found at a face nobody held whose torso's middle lies within this share of a found person's
+# stature of theirs is that person again (their pose put the nose off their face)
+SAME_TORSO = 0.08
+
+
+def _torso(lm):
+    """The middle of the shoulders and hips ((33,4) normalised landmarks), normalised."""
+    return lm[[11, 12, 23, 24], :2].mean(0)
+
+
+def _stature_px(lm, W: int, H: int) -> float:
+    """A person's height in pixels from their seen landmarks ((33,4) normalised)."""
+    import numpy as np
+
+    seen = lm[:, 3] >= 0.3
+    pts = lm[seen if seen.sum() >= 4 else slice(None), :2] * np.array([W, H])
+    return float(max(np.ptp(pts[:, 1]), np.ptp(pts[:, 0]), 1.0))
+
+
 # square windows tried, as a share of the image's shorter side, when the whole image shows nobody: the
 # legacy Pose detector fits the whole image into its square input, so in a wide frame a person at a
 # third of its height (a landscape photo taken from a distance) was too small to be found
@@ -142,24 +184,46 @@ def window_origins(length: int, side: int) -> list[int]:
     return sorted({round(k * (length - side) / (n - 1)) for k in range(n)})
 
 
+def _pose_in(pose, image):
+    """(landmarks (33,4) normalised to ``image``, segmentation (H,W) float) of the person mediapipe's
+    Pose finds in ``image``, or None."""
+    import numpy as np
+
+    result = pose.process(np.ascontiguousarray(image))
+    if result.pose_landmarks is None:
+        return None
+    lm = np.array([[q.x, q.y, q.z, q.visibility] for q in result.pose_landmarks.landmark], np.float32)
+    seg = result.segmentation_mask
+    return lm, (np.zeros(image.shape[:2], np.float32) if seg is None else np.asarray(seg, np.float32))
+
+
+def pose_in_window(pose, image, x: int, y: int, side: int):
+    """``_pose_in`` on the square window of ``side`` pixels at (x, y) of ``image`` (clipped to it),
+    mapped back onto the whole image; or None."""
+    import numpy as np
+
+    H, W = image.shape[:2]
+    got = _pose_in(pose, image[y:y + side, x:x + side])
+    if got is None:
+        return None
+    lm, seg = got
+    h, w = seg.shape
+    lm = lm.copy()
+    lm[:, 0] = (lm[:, 0] * w + x) / W
+    lm[:, 1] = (lm[:, 1] * h + y) / H
+    lm[:, 2] = lm[:, 2] * w / W  # z is on the x scale
+    full = np.zeros((H, W), np.float32)
+    full[y:y + h, x:x + w] = seg
+    return lm, full
+
+
 def detect_one(pose, image, windows: bool):
     """(landmarks (33,4) normalised to ``image``, segmentation (H,W) float) of one person, or None:
     the whole image first; then, with ``windows``, square windows of each size in ``WINDOWS`` (the
     largest size that finds someone wins, and among its windows the detection with the highest mean
     landmark visibility), mapped back onto the image."""
-    import numpy as np
-
     H, W = image.shape[:2]
-
-    def run(img):
-        result = pose.process(np.ascontiguousarray(img))
-        if result.pose_landmarks is None:
-            return None
-        lm = np.array([[q.x, q.y, q.z, q.visibility] for q in result.pose_landmarks.landmark], np.float32)
-        seg = result.segmentation_mask
-        return lm, (np.zeros(img.shape[:2], np.float32) if seg is None else np.asarray(seg, np.float32))
-
-    whole = run(image)
+    whole = _pose_in(pose, image)
     if whole is not None or not windows:
         return whole
     for share in WINDOWS:
@@ -169,28 +233,122 @@ def detect_one(pose, image, windows: bool):
         best = None
         for y in window_origins(H, side):
             for x in window_origins(W, side):
-                got = run(image[y:y + side, x:x + side])
-                if got is None:
-                    continue
-                lm, seg = got
-                if best is not None and lm[:, 3].mean() <= best[0][:, 3].mean():
-                    continue
-                lm = lm.copy()
-                lm[:, 0] = (lm[:, 0] * side + x) / W
-                lm[:, 1] = (lm[:, 1] * side + y) / H
-                lm[:, 2] = lm[:, 2] * side / W  # z is on the x scale
-                full = np.zeros((H, W), np.float32)
-                full[y:y + side, x:x + side] = seg
-                best = (lm, full)
+                got = pose_in_window(pose, image, x, y, side)
+                if got is not None and (best is None or got[0][:, 3].mean() > best[0][:, 3].mean()):
+                    best = got
         if best is not None:
             return best
     return None
 
 
-def find_people(images, args, mp, mp_pose) -> int:
-    """Everyone in each image: detect one person, blank them out, detect again. Where the whole image
-    shows nobody at all, the first search also tries square windows (``detect_one``)."""
+def find_faces(detector, image, W: int, H: int) -> list[tuple[float, float, float, float]]:
+    """Pixel boxes (x0, y0, x1, y1) of the faces mediapipe's full-range face detector finds."""
     import numpy as np
+
+    result = detector.process(np.ascontiguousarray(image))
+    boxes = []
+    for d in result.detections or []:
+        b = d.location_data.relative_bounding_box
+        boxes.append((b.xmin * W, b.ymin * H, (b.xmin + b.width) * W, (b.ymin + b.height) * H))
+    return boxes
+
+
+def face_of(lm, faces, W: int, H: int) -> int | None:
+    """The index of the face box (grown by half its size each way) that holds the person's nose, or None."""
+    x, y = float(lm[0, 0]) * W, float(lm[0, 1]) * H
+    for j, (x0, y0, x1, y1) in enumerate(faces):
+        gx, gy = 0.5 * (x1 - x0), 0.5 * (y1 - y0)
+        if x0 - gx <= x <= x1 + gx and y0 - gy <= y <= y1 + gy:
+            return j
+    return None
+
+
+def search_people(image, pose, face_finder, max_people: int):
+    """Everyone in ``image`` (H,W,3) uint8: (landmarks (n,33,4) normalised, regions (n,H,W) bool), left
+    unsorted. ``pose`` and ``face_finder`` are mediapipe's Pose and FaceDetection (anything with their
+    ``process``).
+
+    Detect one person, blank them out near their own skeleton, detect again. Where the whole image
+    shows nobody at all, the first search also tries square windows (``detect_one``). Then each face
+    that nobody found holds (found on the image with everyone found blanked out) is looked for again
+    with the other such faces hidden: the pose detector starts from a face, and between two people
+    who lean together it found one skeleton for both. At the end every pixel of anyone's
+    segmentation goes to the person whose skeleton is nearest (``skeleton_split``): a segmentation
+    takes in whoever touches its person."""
+    import numpy as np
+
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from skeleton_split import distance_to_segments, skeleton_segments, split_by_skeleton
+
+    H, W = image.shape[:2]
+    work = image.copy()
+    fill = np.median(image.reshape(-1, 3), axis=0).astype(np.uint8)
+    boxes, marks, regions, dists = [], [], [], []
+
+    def add(lm, segmentation, new: bool = False) -> bool:
+        """Keep a detection unless it is someone already found (a box mostly inside one found before;
+        ``new``, found at a face nobody held: a torso where one found before has theirs); blank them
+        in ``work``."""
+        x0, y0, x1, y1 = _box(lm, W, H)
+        if x1 - x0 < 4 or y1 - y0 < 4:
+            return False
+        for b, other in zip(boxes, marks):  # the same person again (blanking missed them)
+            if new:  # people who lean together share most of a box: the same torso is the same person
+                if np.hypot(*((_torso(lm) - _torso(other)) * [W, H])) < SAME_TORSO * _stature_px(other, W, H):
+                    return False
+                continue
+            ix = max(0, min(x1, b[2]) - max(x0, b[0])) * max(0, min(y1, b[3]) - max(y0, b[1]))
+            if ix > 0.5 * min((x1 - x0) * (y1 - y0), (b[2] - b[0]) * (b[3] - b[1])):
+                return False
+        boxes.append((x0, y0, x1, y1))
+        inside = np.zeros((H, W), bool)
+        inside[y0:y1, x0:x1] = True
+        region = (segmentation > 0.5) & inside
+        marks.append(lm)
+        regions.append(region)
+        segs, head = skeleton_segments(lm[:, :2] * np.array([W, H], np.float32), lm[:, 3])
+        body_dist = distance_to_segments(segs[~head], H, W)
+        head_dist = distance_to_segments(segs[head], H, W)
+        dist = np.minimum(body_dist, head_dist)
+        dists.append(dist)
+        # blank the person: their segmentation near their bones, and their bones' core whatever the
+        # segmentation says (a neighbour further off is left for the next detection)
+        reach = _stature_px(lm, W, H)
+        near = (body_dist < BLANK_REACH * reach) | (head_dist < HEAD_REACH * reach)
+        work[(region & near) | (dist < CORE_REACH * reach)] = fill
+        return True
+
+    while len(boxes) < max_people:
+        got = detect_one(pose, work, windows=not boxes)
+        if got is None or not add(*got):
+            break
+    faces = find_faces(face_finder, work, W, H)
+    held = {face_of(lm, faces, W, H) for lm in marks}
+    left = sorted((j for j in range(len(faces)) if j not in held),
+                  key=lambda j: -(faces[j][2] - faces[j][0]) * (faces[j][3] - faces[j][1]))
+    for j in left:
+        if len(boxes) >= max_people:
+            break
+        view = work.copy()
+        for k in left:  # the other faces nobody holds yet out of sight
+            if k != j:
+                view[_grown(faces[k], 0.3, W, H)] = fill
+        fx0, fy0, fx1, fy1 = faces[j]
+        side = int(min(H, W, max(16, FACE_WINDOW * (fy1 - fy0))))
+        x = int(np.clip(0.5 * (fx0 + fx1) - side / 2, 0, W - side))
+        y = int(np.clip(fy0 - 0.5 * (fy1 - fy0), 0, H - side))
+        for got in (_pose_in(pose, view), pose_in_window(pose, view, x, y, side)):
+            if got is not None and face_of(got[0], faces, W, H) == j and add(*got, new=True):
+                break
+    if not boxes:
+        return np.zeros((0, NUM_LANDMARKS, 4), np.float32), np.zeros((0, H, W), bool)
+    return np.stack(marks), split_by_skeleton(np.stack(regions), np.stack(dists))
+
+
+def find_people(images, args, mp, mp_pose) -> int:
+    """``search_people`` on each image, with mediapipe's Pose and its full-range face detector."""
+    import numpy as np
+    from mediapipe.python.solutions import face_detection
 
     T, H, W = images.shape[:3]
     P = args.max_people
@@ -198,40 +356,14 @@ def find_people(images, args, mp, mp_pose) -> int:
     people = np.zeros((T, P, NUM_LANDMARKS, 4), np.float32)
     regions = np.zeros((T, P, H, W), np.uint8)
     with mp_pose.Pose(static_image_mode=True, model_complexity=args.model_complexity, enable_segmentation=True,
-                      min_detection_confidence=args.min_detection_confidence) as pose:
+                      min_detection_confidence=args.min_detection_confidence) as pose, \
+            face_detection.FaceDetection(model_selection=1, min_detection_confidence=0.5) as face_finder:
         for i in range(T):
             report(args, "people", i, T)
-            work = images[i].copy()
-            fill = np.median(images[i].reshape(-1, 3), axis=0).astype(np.uint8)
-            boxes = []
-            for p in range(P):
-                got = detect_one(pose, work, windows=p == 0)
-                if got is None:
-                    break
-                lm, segmentation = got
-                x0, y0, x1, y1 = _box(lm, W, H)
-                if x1 - x0 < 4 or y1 - y0 < 4:
-                    break
-                dup = False
-                for b in boxes:  # the same person again (blanking missed them): stop
-                    ix = max(0, min(x1, b[2]) - max(x0, b[0])) * max(0, min(y1, b[3]) - max(y0, b[1]))
-                    if ix > 0.5 * min((x1 - x0) * (y1 - y0), (b[2] - b[0]) * (b[3] - b[1])):
-                        dup = True
-                if dup:
-                    break
-                boxes.append((x0, y0, x1, y1))
-                seg = segmentation > 0.5
-                inside = np.zeros((H, W), bool)
-                inside[y0:y1, x0:x1] = True
-                region = seg & inside
-                people[i, p] = lm
-                regions[i, p] = region * 255
-                count[i] = p + 1
-                # blank the person (their segmentation inside their box, and the box's core)
-                core = np.zeros((H, W), bool)
-                cw = (x1 - x0) // 6
-                core[y0:y1, x0 + cw:x1 - cw] = True
-                work[region | (core & ~np.any(regions[i, :p] > 0, axis=0))] = fill
+            marks, found = search_people(images[i], pose, face_finder, P)
+            count[i] = len(marks)
+            people[i, :len(marks)] = marks
+            regions[i, :len(marks)] = found * 255
     report(args, "people", T, T)
     tmp = args.out + ".part.npz"
     np.savez(tmp, count=count, people=people, regions=regions, version=np.array(mp.__version__))
