@@ -51,11 +51,11 @@ def test_skeleton_segments_keep_the_seen_bones_and_flag_the_head():
     assert len(segs3) == len(BONES) + 1
 
 
-def test_split_by_skeleton_gives_every_pixel_to_the_nearest_person_that_holds_it():
-    """The first person's segmentation took in the second, who stands against them: each gets their own
-    side of the middle between their bones where both hold a pixel, and what only one holds (past
-    the middle) stays theirs; pixels outside every segmentation stay nobody's; one person keeps
-    their segmentation."""
+def test_split_by_skeleton_gives_every_pixel_to_the_nearest_person():
+    """The first person's segmentation took in the second, who stands against them: where both hold a
+    pixel it goes to the nearer skeleton; a pixel only one holds goes to the other only where the
+    other's skeleton is more than twice as near (``STRANGER``); pixels outside every segmentation stay
+    nobody's; one person keeps their segmentation."""
     H, W = 20, 40
     left, right = np.zeros((H, W), bool), np.zeros((H, W), bool)
     left[2:18, 2:30] = True  # took in most of the neighbour
@@ -65,11 +65,16 @@ def test_split_by_skeleton_gives_every_pixel_to_the_nearest_person_that_holds_it
     a, b = split_by_skeleton(np.stack([left, right]), d)
     assert not (a & b).any() and ((a | b) == (left | right)).all()
     assert (a[:, :20] == left[:, :20]).all() and not a[:, 20:].any()
-    assert (b[:, 20:] == (left | right)[:, 20:]).all() and not b[:, :18].any()
-    # a pixel only the first holds, nearer the second's bones, stays the first's
-    right[:, 28:30] = False
+    assert (b[:, 20:] == (left | right)[:, 20:]).all() and not b[:, :20].any()
+    # columns 21-22 only the first holds: the second's bone (6.5-8.5 px) is not twice as near as the
+    # first's (11.5-12.5): the first's; columns 26-27 only the first holds, the second's bone 2.5-3.5
+    # px off against 16.5-17.5: the second's
+    right[:, 21:23] = False
+    right[:, 26:28] = False
     a, b = split_by_skeleton(np.stack([left, right]), d)
-    assert a[2:18, 28:30].all() and not b[:, 28:30].any()
+    assert a[2:18, 21:23].all() and not b[:, 21:23].any()
+    assert b[2:18, 26:28].all() and not a[:, 26:28].any()
+    assert (a | b)[left | right].all() and not (a | b)[~(left | right)].any()
     one = split_by_skeleton(left[None], d[:1])
     assert (one[0] == left).all()
 

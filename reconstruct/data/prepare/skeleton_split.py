@@ -5,7 +5,8 @@ before looking again. A segmenter's mask of one person takes in whoever stands a
 group photo's coats), so blanking that whole mask blanked the neighbour too, and the next detection
 merged what was left of them with the person beside. Here each person's skeleton (their landmarks'
 bones, torso and head) gives a distance map: a person is blanked only near their own bones, and at
-the end a pixel that several people's masks hold goes to the one whose skeleton is nearest.
+the end each pixel of anyone's mask goes to the person whose skeleton is nearest, a person whose
+mask does not hold it counting as further (``STRANGER``).
 
 numpy only, no project imports: the mediapipe worker runs it in its own virtualenv (numpy<2).
 """
@@ -59,12 +60,20 @@ def distance_to_segments(segments: np.ndarray, height: int, width: int) -> np.nd
     return best.astype(np.float32)
 
 
-def split_by_skeleton(regions: np.ndarray, distances: np.ndarray) -> np.ndarray:
-    """(P, H, W) bool: a pixel that several of ``regions`` (P, H, W) hold goes to the one of them
-    whose skeleton is nearest (``distances`` (P, H, W), from ``distance_to_segments``; ties to the
-    lower index); a pixel only one holds stays theirs."""
+# a person whose segmentation does not hold a pixel takes it only where their skeleton is this many
+# times nearer than that of everyone who holds it: a segmentation takes in the neighbour who touches
+# its person, and the neighbour's own segmentation can miss some of them
+STRANGER = 2.0
+
+
+def split_by_skeleton(regions: np.ndarray, distances: np.ndarray, *, stranger: float = STRANGER) -> np.ndarray:
+    """(P, H, W) bool: each pixel of any of ``regions`` (P, H, W) goes to the person with the nearest
+    skeleton (``distances`` (P, H, W), from ``distance_to_segments``; ties to the lower index), a person
+    whose region does not hold it counting ``stranger`` times as far."""
     regions = np.asarray(regions, bool)
     if len(regions) < 2:
         return regions.copy()
-    owner = np.argmin(np.where(regions, np.asarray(distances, np.float64), np.inf), axis=0)
-    return np.stack([regions[p] & (owner == p) for p in range(len(regions))])
+    d = np.asarray(distances, np.float64) * np.where(regions, 1.0, float(stranger))
+    owner = np.argmin(d, axis=0)
+    anyone = regions.any(axis=0)
+    return np.stack([anyone & (owner == p) for p in range(len(regions))])
