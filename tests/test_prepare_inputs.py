@@ -53,6 +53,7 @@ def test_single_image_and_folder_inputs(synth, tmp_path):
                                    log=lambda m: None)
     assert report["input_kind"] == "image" and report["frames_used"] == 1
     assert (out / "prepare_report.png").is_file() and (out / "prepare_report.json").is_file()
+    assert not (out / "prepare_people.png").exists()  # one person: no picture of who is who
     assert report["per_frame"][0]["name"] == "person.png"
     assert report["cut_off"] == {} and report["landmarks_at_cut_edges"] == 0  # the whole body in view
     # a folder: images sorted by name (not by creation order), every one a frame
@@ -168,6 +169,7 @@ def test_two_people_side_by_side_with_mediapipe(synth, tmp_path):
         _, report = prepare_video(img, out, detector=det, person=person, fit_config=QUICK, log=lambda m: None)
         p = report["person"]
         assert p["people_found"] == 2 and p["picked"] == (1 if side == "left" else 2)
+        assert (out / "prepare_people.png").is_file()  # who is who, numbered for --person
         crop = Crop(**report["crop"])
         scene = read_scene(out)
         f = scene.frames[0]
@@ -872,3 +874,29 @@ def test_the_report_image_marks_an_edge_that_cuts_the_person_off(tmp_path):
     rows = np.flatnonzero(red.any(1))
     assert red.sum() > 50 and rows.min() > shape[0] // 2  # low in the figure, along the bottom edge
     assert red.any(0).sum() > shape[1] // 2  # across the three image panels
+
+
+def test_the_people_picture_numbers_everyone_and_shows_the_chosen_one_in_full(tmp_path):
+    """``prepare_people.png``: each person's pixels tinted with their number's colour but the chosen
+    one's, left as the image has them; written whole (no partial file left)."""
+    from reconstruct.data.prepare.report_image import _TINTS, write_people_image
+
+    grey = 120
+    img = np.full((120, 160, 3), 30, np.uint8)
+    regions = []
+    for x0 in (10, 60, 110):
+        r = np.zeros((120, 160), bool)
+        r[20:110, x0:x0 + 40] = True
+        img[r] = grey
+        regions.append(r)
+    boxes = [(10, 20, 50, 110), (60, 20, 100, 110), (110, 20, 150, 110)]
+    path = write_people_image(tmp_path / "prepare_people.png", img, regions, boxes, 2, "3 people")
+    assert path.is_file() and not list(tmp_path.glob("*.part*"))
+    out = np.asarray(Image.open(path).convert("RGB")).astype(float)
+
+    def count(colour):
+        return int((np.abs(out - colour).max(-1) < 6).sum())
+
+    tinted = [0.5 * grey + 0.5 * 255 * _TINTS[i] for i in range(3)]
+    assert count(tinted[0]) > 200 and count(tinted[2]) > 200  # the others, tinted
+    assert count(tinted[1]) == 0 and count(np.full(3, grey)) > 200  # the chosen one, as it is

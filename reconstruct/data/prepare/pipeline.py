@@ -36,7 +36,8 @@ from .masks import fill_holes as fill_mask_holes
 from .masks import remove_others
 from .matting import decontaminate
 from .people import PersonChoiceError, PersonTrack, choose_person, quarter_turns
-from .report_image import REPORT_IMAGE, ReportFrame, pick_frames, write_report_image
+from .report_image import (PEOPLE_IMAGE, REPORT_IMAGE, ReportFrame, pick_frames, write_people_image,
+                           write_report_image)
 from .shape import ShapeBasis, body_height
 from .user_masks import read_user_masks
 from .video import Video, working_size
@@ -147,8 +148,20 @@ def _find_person(video: Video, names: list[str], detector: PersonDetector, perso
     choice = "largest and most central" if track.picked_by == "auto" else "--person"
     log(f"{names[sample[first]]}: found {track.count} {'person' if track.count == 1 else 'people'} "
         f"(numbered left to right); preparing person {track.index} ({choice})"
-        + ("; choose another with --person N" if track.count > 1 else ""))
+        + (f"; choose another with --person N ({PEOPLE_IMAGE} in the scene shows who is who)"
+           if track.count > 1 else ""))
     return track, sample
+
+
+def _people_image(path: Path, preview: Video, names: list[str], sample: list[int], track: PersonTrack) -> None:
+    """``prepare_people.png``: everyone found in the first frame with people, numbered as ``--person``
+    counts them, the chosen one drawn in full."""
+    first = next(i for i, c in enumerate(track.per_frame) if c is not None)
+    everyone = sorted([track.per_frame[first], *track.others[first]], key=lambda c: c.center[0])
+    choice = "largest and most central" if track.picked_by == "auto" else "--person"
+    write_people_image(path, preview.frames[sample[first]], [c.region for c in everyone], [c.box for c in everyone],
+                       track.index, f"{names[sample[first]]}: {track.count} people (--person N)\n"
+                       f"preparing {track.index} ({choice})")
 
 
 def _others_in_crop(track: PersonTrack, sample: list[int], ps: float, cr: Crop, T: int) -> list[np.ndarray | None]:
@@ -376,6 +389,8 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
             else:
                 write_report_image(inner / REPORT_IMAGE, rows, title,
                                    mask_title="your mask (green: more, red: less than the segmenter's)")
+            if track is not None and track.count > 1:
+                _people_image(inner / PEOPLE_IMAGE, preview, names, sample, track)
         report["seconds"]["total"] = time.perf_counter() - t0
         (inner / REPORT_NAME).write_text(json.dumps(report, indent=1))
         if out.exists():

@@ -94,3 +94,48 @@ def _erode(m: np.ndarray) -> np.ndarray:
     from scipy import ndimage
 
     return ndimage.binary_erosion(m, iterations=1)
+
+
+PEOPLE_IMAGE = "prepare_people.png"
+# the people's tints, by their number (1-based) left to right; the chosen one is drawn in full
+_TINTS = np.array([[0.95, 0.25, 0.2], [0.2, 0.45, 0.95], [0.2, 0.8, 0.3], [0.95, 0.8, 0.15], [0.8, 0.3, 0.85],
+                   [0.2, 0.85, 0.85]])
+
+
+def write_people_image(path: str | os.PathLike, image: np.ndarray, regions: list[np.ndarray],
+                       boxes: list[tuple[float, float, float, float]], chosen: int, title: str) -> Path:
+    """``SCENE/prepare_people.png`` where several people were found: ``image`` (H,W,3) uint8 (the frame
+    they were numbered in), each person's pixels (``regions``, (H,W) bool, in their number's order,
+    left to right) tinted and their box and number drawn, the ``chosen`` one (1-based) in a thick box
+    and untinted: which ``--person N`` is whom."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    img = image.astype(np.float32) / 255.0
+    over = img * 0.45
+    for i, region in enumerate(regions):
+        tint = _TINTS[i % len(_TINTS)]
+        if i + 1 == chosen:
+            over[region] = img[region]
+        else:
+            over[region] = 0.5 * img[region] + 0.5 * tint
+    h, w = img.shape[:2]
+    fig, ax = plt.subplots(figsize=(6.0 * w / max(h, w) + 0.4, 6.0 * h / max(h, w) + 0.6))
+    ax.imshow(np.clip(over, 0, 1))
+    for i, (x0, y0, x1, y1) in enumerate(boxes):
+        tint = _TINTS[i % len(_TINTS)]
+        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, color=tint,
+                                   lw=3.0 if i + 1 == chosen else 1.2))
+        ax.text(x0 + 3, y0 + 3, str(i + 1), color="white", fontsize=12, fontweight="bold", va="top",
+                bbox={"facecolor": tint, "edgecolor": "none", "pad": 2})
+    ax.set_title(title, fontsize=9)
+    ax.axis("off")
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".part.png")
+    fig.savefig(tmp, dpi=80)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
