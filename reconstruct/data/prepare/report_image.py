@@ -82,6 +82,14 @@ def write_report_image(path: str | os.PathLike, frames: list[ReportFrame], title
         ax.plot([f.side.head[0], f.side.feet[0]], [f.side.head[1], f.side.feet[1]], "r-", lw=1.5)
         ax.axvline(f.side.feet[0], color="0.6", lw=0.8, ls="--")
     fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def _save(fig, path: Path) -> Path:
+    """Lay out, write to a temporary file and rename onto ``path`` (a reader never sees half a PNG),
+    and close the figure."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     tmp = path.with_name(path.name + ".part.png")
     fig.savefig(tmp, dpi=80)
@@ -133,9 +141,4 @@ def write_people_image(path: str | os.PathLike, image: np.ndarray, regions: list
                 bbox={"facecolor": tint, "edgecolor": "none", "pad": 2})
     ax.set_title(title, fontsize=9)
     ax.axis("off")
-    fig.tight_layout()
-    tmp = path.with_name(path.name + ".part.png")
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return _save(fig, path)
