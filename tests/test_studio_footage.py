@@ -60,6 +60,7 @@ SCRIPT = textwrap.dedent("""
             result["scene_folder"] = fc.state.scene_folder
             result["message"] = fc.state.message
             result["report_image"] = fc.state.report_image
+            result["people_image"] = fc.state.people_image
             result["report_text"] = bool(fc.state.report_text)
             if fc.state.scene_folder is None:
                 app.close()
@@ -107,6 +108,7 @@ def test_prepare_a_photo_and_train_on_it_from_the_window(tmp_path):
     assert {"keypoints", "silhouette"} <= set(r.get("stages", [])), r.get("stages")
     assert Path(out + "_progress.png").is_file()
     assert Path(r["report_image"]).is_file() and r["report_text"]
+    assert r["people_image"] is None  # one person: no picture of who is who
     assert r["phase"] == 2 and r["second_steps"] >= 2 and r["val_kind"] == "training-view fit", r
     # the first run was saved and its lock released; the second trains in its own run folder
     assert (tmp_path / "run0" / "checkpoint.pt").is_file() and (tmp_path / "run0" / ".lock").read_text() == ""

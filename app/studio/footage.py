@@ -42,6 +42,7 @@ class FootageState:
     scene_folder: str | None = None  # the prepared scene (after success)
     report_text: str | None = None
     report_image: str | None = None  # SCENE/prepare_report.png
+    people_image: str | None = None  # SCENE/prepare_people.png: who is who, where several people were found
     message: str | None = None  # the last error, one line
     log: list[str] = field(default_factory=list)
     # (stage, done, total) of the step prepare is in, as it reports it (None: not known yet)
@@ -105,7 +106,7 @@ class FootageController:
             st.message = f"{masks}: no such mask file or folder (a mask video, a mask image or a folder of them)"
             return False
         out = free_folder(Path(self.scenes_root) / (path.stem or "footage"))
-        st.message = st.report_text = st.report_image = st.scene_folder = st.step = None
+        st.message = st.report_text = st.report_image = st.people_image = st.scene_folder = st.step = None
         st.log.clear()
         st.add_log(f"preparing {path} into {out}")
 
@@ -170,8 +171,11 @@ class FootageController:
             else:
                 folder, text = job.result
                 st.scene_folder, st.report_text = str(folder), text
-                image = Path(folder) / "prepare_report.png"
+                from reconstruct.data.prepare.report_image import PEOPLE_IMAGE, REPORT_IMAGE
+
+                image, people = Path(folder) / REPORT_IMAGE, Path(folder) / PEOPLE_IMAGE
                 st.report_image = str(image) if image.is_file() else None
+                st.people_image = str(people) if people.is_file() else None
                 st.add_log(f"wrote {folder} in {job.seconds:.0f} s")
         job = self.switch_job
         if job is not None and job.done:

@@ -58,11 +58,21 @@ def draw(ui: PanelContext) -> None:
         if imgui.tree_node("report"):
             imgui.text_unformatted(st.report_text)
             imgui.tree_pop()
+    if st.people_image:
+        imgui.set_next_item_open(True, imgui.Cond_.once)
+    if st.people_image and imgui.tree_node("who is who (person N)"):
+        _picture(ui, st.people_image)
+        imgui.tree_pop()
     if st.report_image:
-        tex = ui.texture(st.report_image)
-        if tex is not None:
-            w = imgui.get_content_region_avail().x
-            tw, th = tex.size
-            imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w, w * th / max(tw, 1)))
+        _picture(ui, st.report_image)
     if st.message:
         error_text(st.message)
+
+
+def _picture(ui: PanelContext, path: str) -> None:
+    """An image file as wide as the panel."""
+    tex = ui.texture(path)
+    if tex is not None:
+        w = imgui.get_content_region_avail().x
+        tw, th = tex.size
+        imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w, w * th / max(tw, 1)))
