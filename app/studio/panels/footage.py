@@ -60,9 +60,9 @@ def draw(ui: PanelContext) -> None:
             imgui.tree_pop()
     if st.people_image:
         imgui.set_next_item_open(True, imgui.Cond_.once)
-    if st.people_image and imgui.tree_node("who is who (person N)"):
-        _picture(ui, st.people_image)
-        imgui.tree_pop()
+        if imgui.tree_node("who is who (person N)"):
+            _picture(ui, st.people_image)
+            imgui.tree_pop()
     if st.report_image:
         _picture(ui, st.report_image)
     if st.message:

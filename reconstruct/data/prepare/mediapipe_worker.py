@@ -93,7 +93,7 @@ def main(argv=None) -> int:
                 masks[i] = np.clip(result.segmentation_mask * 255.0 + 0.5, 0, 255).astype(np.uint8)
     extra = {}
     if args.refine:
-        sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+        _siblings_importable()
         from grabcut_refine import refine_mask
 
         raw = masks.copy()
@@ -114,13 +114,27 @@ def main(argv=None) -> int:
     return 0
 
 
-def _box(lm, W: int, H: int) -> tuple[int, int, int, int]:
-    """Pixel box (x0, y0, x1, y1) around a person's landmarks ((33,4) normalised), grown to cover the head
-    and the feet."""
+def _siblings_importable() -> None:
+    """This file's folder on ``sys.path`` (once): its numpy-only siblings import as top-level modules
+    here, where the project's package cannot be imported."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    if here not in sys.path:
+        sys.path.insert(0, here)
+
+
+def _seen_points(lm, W: int, H: int):
+    """(n,2) pixels of a person's landmarks seen with visibility at least 0.3 ((33,4) normalised), or
+    of all of them where fewer than 4 are."""
     import numpy as np
 
     seen = lm[:, 3] >= 0.3
-    pts = lm[seen if seen.sum() >= 4 else slice(None), :2] * np.array([W, H])
+    return lm[seen if seen.sum() >= 4 else slice(None), :2] * np.array([W, H])
+
+
+def _box(lm, W: int, H: int) -> tuple[int, int, int, int]:
+    """Pixel box (x0, y0, x1, y1) around a person's landmarks ((33,4) normalised), grown to cover the head
+    and the feet."""
+    pts = _seen_points(lm, W, H)
     x0, y0 = pts.min(0)
     x1, y1 = pts.max(0)
     h = max(y1 - y0, 1.0)
@@ -153,6 +167,12 @@ def _grown(box, share: float, W: int, H: int) -> tuple[slice, slice]:
 SAME_TORSO = 0.08
 
 
+def _overlap(a, b) -> float:
+    """The area two boxes (x0, y0, x1, y1) share, as a share of the smaller one's."""
+    ix = max(0, min(a[2], b[2]) - max(a[0], b[0])) * max(0, min(a[3], b[3]) - max(a[1], b[1]))
+    return ix / max(min((a[2] - a[0]) * (a[3] - a[1]), (b[2] - b[0]) * (b[3] - b[1])), 1e-9)
+
+
 def _torso(lm):
     """The middle of the shoulders and hips ((33,4) normalised landmarks), normalised."""
     return lm[[11, 12, 23, 24], :2].mean(0)
@@ -162,8 +182,7 @@ def _stature_px(lm, W: int, H: int) -> float:
     """A person's height in pixels from their seen landmarks ((33,4) normalised)."""
     import numpy as np
 
-    seen = lm[:, 3] >= 0.3
-    pts = lm[seen if seen.sum() >= 4 else slice(None), :2] * np.array([W, H])
+    pts = _seen_points(lm, W, H)
     return float(max(np.ptp(pts[:, 1]), np.ptp(pts[:, 0]), 1.0))
 
 
@@ -277,7 +296,7 @@ def search_people(image, pose, face_finder, max_people: int):
     takes in whoever touches its person."""
     import numpy as np
 
-    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    _siblings_importable()
     from skeleton_split import distance_to_segments, skeleton_segments, split_by_skeleton
 
     H, W = image.shape[:2]
@@ -292,14 +311,13 @@ def search_people(image, pose, face_finder, max_people: int):
         x0, y0, x1, y1 = _box(lm, W, H)
         if x1 - x0 < 4 or y1 - y0 < 4:
             return False
-        for b, other in zip(boxes, marks):  # the same person again (blanking missed them)
-            if new:  # people who lean together share most of a box: the same torso is the same person
-                if np.hypot(*((_torso(lm) - _torso(other)) * [W, H])) < SAME_TORSO * _stature_px(other, W, H):
-                    return False
-                continue
-            ix = max(0, min(x1, b[2]) - max(x0, b[0])) * max(0, min(y1, b[3]) - max(y0, b[1]))
-            if ix > 0.5 * min((x1 - x0) * (y1 - y0), (b[2] - b[0]) * (b[3] - b[1])):
-                return False
+        # the same person again (blanking missed them). People who lean together share most of a
+        # box: found at a face nobody held, the same torso is the same person
+        if new and any(np.hypot(*((_torso(lm) - _torso(other)) * [W, H])) < SAME_TORSO * _stature_px(other, W, H)
+                       for other in marks):
+            return False
+        if not new and any(_overlap(b, (x0, y0, x1, y1)) > 0.5 for b in boxes):
+            return False
         boxes.append((x0, y0, x1, y1))
         inside = np.zeros((H, W), bool)
         inside[y0:y1, x0:x1] = True
@@ -337,7 +355,8 @@ def search_people(image, pose, face_finder, max_people: int):
         side = int(min(H, W, max(16, FACE_WINDOW * (fy1 - fy0))))
         x = int(np.clip(0.5 * (fx0 + fx1) - side / 2, 0, W - side))
         y = int(np.clip(fy0 - 0.5 * (fy1 - fy0), 0, H - side))
-        for got in (_pose_in(pose, view), pose_in_window(pose, view, x, y, side)):
+        for look in (lambda: _pose_in(pose, view), lambda: pose_in_window(pose, view, x, y, side)):
+            got = look()  # the window is run only when the whole image did not find them
             if got is not None and face_of(got[0], faces, W, H) == j and add(*got, new=True):
                 break
     if not boxes:

@@ -26,6 +26,16 @@ class PersonTrack:
     per_frame: list[PersonCandidate | None]
     others: list[list[PersonCandidate]]  # per frame everyone else
 
+    @property
+    def first(self) -> int:
+        """The first frame (of those searched) where the chosen person was found: where they are numbered."""
+        return next(i for i, c in enumerate(self.per_frame) if c is not None)
+
+    @property
+    def choice(self) -> str:
+        """How the person was chosen, in words for the log."""
+        return "largest and most central" if self.picked_by == "auto" else "--person"
+
     def union_box(self) -> tuple[float, float, float, float] | None:
         boxes = [c.box for c in self.per_frame if c is not None]
         if not boxes:

@@ -144,10 +144,8 @@ def _find_person(video: Video, names: list[str], detector: PersonDetector, perso
         what = f"in {names[0]}" if T == 1 else f"in any of its {T} frames"
         raise NoPersonError(f"{source}: no person found {what} (expected a front view of one person, whole body "
                             f"in view; the {detector.name} detector found none)")
-    first = next(i for i, c in enumerate(track.per_frame) if c is not None)
-    choice = "largest and most central" if track.picked_by == "auto" else "--person"
-    log(f"{names[sample[first]]}: found {track.count} {'person' if track.count == 1 else 'people'} "
-        f"(numbered left to right); preparing person {track.index} ({choice})"
+    log(f"{names[sample[track.first]]}: found {track.count} {'person' if track.count == 1 else 'people'} "
+        f"(numbered left to right); preparing person {track.index} ({track.choice})"
         + (f"; choose another with --person N ({PEOPLE_IMAGE} in the scene shows who is who)"
            if track.count > 1 else ""))
     return track, sample
@@ -156,12 +154,11 @@ def _find_person(video: Video, names: list[str], detector: PersonDetector, perso
 def _people_image(path: Path, preview: Video, names: list[str], sample: list[int], track: PersonTrack) -> None:
     """``prepare_people.png``: everyone found in the first frame with people, numbered as ``--person``
     counts them, the chosen one drawn in full."""
-    first = next(i for i, c in enumerate(track.per_frame) if c is not None)
+    first = track.first
     everyone = sorted([track.per_frame[first], *track.others[first]], key=lambda c: c.center[0])
-    choice = "largest and most central" if track.picked_by == "auto" else "--person"
     write_people_image(path, preview.frames[sample[first]], [c.region for c in everyone], [c.box for c in everyone],
                        track.index, f"{names[sample[first]]}: {track.count} people (--person N)\n"
-                       f"preparing {track.index} ({choice})")
+                       f"preparing {track.index} ({track.choice})")
 
 
 def _others_in_crop(track: PersonTrack, sample: list[int], ps: float, cr: Crop, T: int) -> list[np.ndarray | None]:
