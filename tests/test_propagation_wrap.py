@@ -1468,3 +1468,69 @@ def test_an_open_coats_back_above_the_layer_takes_the_coats_colour():
     video = wrap_fill_colors(pos, parts, round_, col, None, cfg, under_layer=under).numpy()
     assert np.array_equal(video, wrap_fill_colors(pos, parts, round_, col, None, dataclasses.replace(cfg, coat_back=False),
                                                   under_layer=under).numpy())
+
+
+def _photo_of(pos, colours, front, strands_to=None, scale=100.0, size=(110, 70), top=1.80):
+    """A frontal orthographic picture (``scale`` px per metre, row 0 at z = ``top``, the middle column
+    at x = 0) of the ``front`` Gaussians in ``colours``, their pixels grown by one to close the gaps,
+    and the view of all ``pos``. ``strands_to``: hair drawn down both sides of the neck, over the
+    torso, to that height."""
+    from scipy import ndimage
+
+    from reconstruct.appearance.cut_fill import FrameView
+
+    h, w = size
+    uv = np.c_[w / 2 + scale * pos[:, 0], scale * (top - pos[:, 2])]
+    image = np.zeros((h, w, 3))
+    mask = np.zeros((h, w), bool)
+    order = np.argsort(-pos[:, 1])  # far ones first, the nearest drawn last
+    for i in order[front[order]]:
+        x, y = int(uv[i, 0]), int(uv[i, 1])
+        image[y, x], mask[y, x] = colours[i], True
+    grown = ndimage.binary_dilation(mask, iterations=1) & ~mask
+    idx = ndimage.distance_transform_edt(~mask, return_distances=False, return_indices=True)
+    image[grown] = image[idx[0][grown], idx[1][grown]]
+    mask |= grown
+    if strands_to is not None:
+        xs = np.arange(w)[None, :]
+        ys = np.arange(h)[:, None]
+        side = (np.abs(np.abs(xs - w / 2) - 0.10 * scale) <= 2.5) & (ys >= scale * (top - 1.72)) & (ys < scale * (top - strands_to))
+        image[side] = HAIR
+        mask |= side
+    return FrameView(uv, np.ones(len(pos), bool), image, mask.astype(np.float32))
+
+
+def test_long_hair_in_a_photo_covers_the_back_of_the_neck_and_shoulders():
+    """A head seen from the front only, a neck and a torso in a blue shirt; the photo shows hair
+    falling either side of the neck onto the shoulders, to 1.35 m. From behind, the hair covers the
+    back of the neck and the upper back between its strands, to about that height, in its colour
+    (``hair_back_parts``, ``long_hair.py``); hair cut at the jaw leaves them the shirt's and the
+    neck's, as does a fill without the images."""
+    head, th = cylinder(radius=0.09, height=0.22, n_theta=72, n_z=44, z0=1.55)
+    deg = np.abs(np.degrees(th)) - 1e-9
+    head_col = np.where(((head[:, 2] < 1.70) & (deg < 50))[:, None], SKIN, HAIR)
+    nose = np.array([[0.0, -0.11, 1.63]])
+    neck, _ = cylinder(radius=0.05, height=0.10, n_theta=40, n_z=20, z0=1.45)
+    torso, th_t = cylinder(radius=0.15, height=0.44, n_theta=96, n_z=88, z0=1.0)
+    pos = np.r_[head, nose, neck, torso]
+    parts = np.r_[np.full(len(head) + 1, PART_INDEX["head"]), np.full(len(neck), PART_INDEX["neck"]),
+                  np.full(len(torso), PART_INDEX["torso"])]
+    truth = np.r_[head_col, [SKIN], np.tile(SKIN, (len(neck), 1)), np.tile(BLUE, (len(torso), 1))]
+    front = pos[:, 1] < np.array([pos[parts == p, 1].mean() for p in parts]) + 1e-9
+    seen = np.r_[deg <= 80, True, front[len(head) + 1:]]
+    col = np.where(seen[:, None], truth, 0.5)
+    long_hair = _photo_of(pos, truth, seen, strands_to=1.35)
+    out = wrap_fill_colors(pos, parts, seen, col, None, hair_views=[long_hair]).numpy()
+    torso_back = (parts == PART_INDEX["torso"]) & ~seen
+    under = torso_back & (pos[:, 2] > 1.38) & (np.abs(pos[:, 0]) < 0.09)
+    assert under.sum() > 50
+    assert np.abs(out[under] - HAIR).max(1).mean() < 0.05
+    neck_back = (parts == PART_INDEX["neck"]) & ~seen
+    assert np.abs(out[neck_back] - HAIR).max(1).mean() < 0.05
+    low = torso_back & (pos[:, 2] < 1.28)
+    assert np.abs(out[low] - BLUE).max(1).max() < 0.05
+    # without the images, and with hair cut at the jaw, the upper back is the shirt's
+    for views in (None, [_photo_of(pos, truth, seen)]):
+        plain = wrap_fill_colors(pos, parts, seen, col, None, hair_views=views).numpy()
+        assert np.abs(plain[under] - BLUE).max(1).mean() < 0.05
+        assert np.abs(plain[neck_back] - HAIR).max(1).mean() > 0.2

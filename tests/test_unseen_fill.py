@@ -121,6 +121,8 @@ def test_trainer_fills_once_at_the_end_of_stage1(tiny_scene, tiny_config, tmp_pa
     # seen by their blend weight alone are not (a bool per Gaussian)
     assert t.done and len(calls) == 1
     not_sources = calls[0].pop("not_sources")
+    views = calls[0].pop("hair_views")  # the training frames, read by the fill only for a head showing hair
+    assert iter(views) is views
     # the tiny scene has no garment layer: the whole ring of the body keeps its decoded colours;
     # no seen Gaussian is one whose colour training never touched (``seen_trained_only``)
     assert calls == [{"keep_ring": tiny_config.fill_unseen_ring, "grazing_rule": False, "ring_trained": None}]
@@ -129,6 +131,20 @@ def test_trainer_fills_once_at_the_end_of_stage1(tiny_scene, tiny_config, tmp_pa
     assert not (not_sources & ~t.state.seen).any()
     t.step()  # a step past the end (the studio's single step) does not fill again
     assert len(calls) == 1
+
+
+def test_hair_views_are_training_frames_posed_with_their_images(tiny_scene, tiny_config, tmp_path):
+    from reconstruct.train.trainer import Trainer
+    from reconstruct.train.unseen_fill import hair_views_of
+
+    t = Trainer(tiny_scene, tiny_config, tmp_path / "run")
+    views = list(hair_views_of(t.state, t.data, max_frames=2))
+    frames = list(t.data.frames)
+    assert len(views) == min(2, len(frames)) and len(frames) > 2
+    first = tiny_scene.frames[frames[0]]
+    uv, z = first.camera.project(t.state.posed(frames[0]).means.detach().double().numpy())
+    np.testing.assert_allclose(views[0].uv, uv)
+    assert views[0].in_front.all() and views[0].image is first.image and views[0].mask is first.mask
 
 
 def test_paper_settings_and_older_runs_do_not_fill():

@@ -106,7 +106,7 @@ def _core(src_pos: np.ndarray, label: np.ndarray) -> np.ndarray:
     return (label[nn] == label[:, None]).mean(1) >= CORE_AGREE
 
 
-def _split(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,
+def hair_and_face(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, contrast: float,
            min_share: float, k: int, skin: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """(hair, face) bool masks over the head's seen Gaussians (steps 1-2 of the module
     docstring; ``skin``: the hands' colour from ``skin_reference``, or None); None when the rule
@@ -161,7 +161,7 @@ def hair_sources(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, c
     """(S,) bool over the head's seen Gaussians (canonical positions ``src_pos``, colours
     ``src_col``): those that show hair (rim, not face-coloured). All False when too few do.
     ``skin``: the hands' colour (``skin_reference``), or None."""
-    split = _split(src_pos, src_col, centre_x, contrast=contrast, min_share=min_share, k=k, skin=skin)
+    split = hair_and_face(src_pos, src_col, centre_x, contrast=contrast, min_share=min_share, k=k, skin=skin)
     return np.zeros(len(src_pos), bool) if split is None else split[0]
 
 
@@ -170,7 +170,7 @@ def face_coloured(src_pos: np.ndarray, src_col: np.ndarray, centre_x: float, *, 
     """(S,) bool over the head's seen Gaussians: those in the face's colour cluster (skin: the
     face, the ears, a bare neck), when the head shows hair of its own colour; all False when the
     rule stands down (a bald head, hair as light as the skin). ``skin``: as ``hair_sources``."""
-    split = _split(src_pos, src_col, centre_x, contrast=contrast, min_share=min_share, k=k, skin=skin)
+    split = hair_and_face(src_pos, src_col, centre_x, contrast=contrast, min_share=min_share, k=k, skin=skin)
     return np.zeros(len(src_pos), bool) if split is None else split[1]
 
 

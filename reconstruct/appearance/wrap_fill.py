@@ -82,7 +82,8 @@ from scipy.spatial import cKDTree
 from ..avatar.garment_layer import GARMENT_PART
 from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
 from .cut_fill import apply_cut_colors
-from .hair import face_coloured, hair_covered, hair_sources, skin_reference
+from .hair import face_coloured, hair_and_face, hair_covered, hair_sources, skin_reference
+from .long_hair import face_middle, hair_back_colors, smooth_cover
 from .periodic_fill import continue_layer
 
 
@@ -298,6 +299,12 @@ class WrapFillConfig:
     # the layer was that: the group photo's second woman, her brown coat open over a light dress, had
     # a light upper back (0.89 0.73 0.63) under a brown coat (0.70 0.50 0.37)
     coat_back: bool = True
+    # hair worn down, read in the images (given ``wrap_fill_colors(hair_views=...)``; ``long_hair.py``):
+    # the unseen Gaussians of these parts behind their part's centre, on a head seen from the front
+    # only, that project into the span the hair covers on their image row take the hair's colour on
+    # that row. The back of a long-haired photo's head ended at the skull, the neck and upper back
+    # below it the dress's colour, and the back of blonde hair was its shadowed strands' brown
+    hair_back_parts: tuple[str, ...] = ("head", "neck", "torso")
 
 
 def grazing_rule_for(stage1_settings) -> bool:
@@ -498,14 +505,19 @@ def _left_right_mirror(todo_pos: np.ndarray, src_pos: np.ndarray, src_col: np.nd
     return out
 
 
-def _front_hair_palette(pos: np.ndarray, col: np.ndarray, parts: np.ndarray, seen: np.ndarray,
-                        hair_seen: np.ndarray, skin: np.ndarray | None, cfg: WrapFillConfig,
-                        visible: np.ndarray, surf: np.ndarray | None = None) -> np.ndarray | None:
-    """(H,3) the colours of the hair a head seen from the front shows round its face
-    (``hair.hair_sources`` on its ``hair_seen`` Gaussians: strands lit and shadowed alike), or
-    None: no head, no hair of its own colour, or a head seen behind its centre (a video that
-    turned; ``_never_seen_behind`` on ``seen``, as the fill decides it)."""
-    if "head" not in PART_INDEX or not cfg.hair_over_parts:
+# parts hair worn down does not fall over: their seen colours are what the hair is told from
+HAIR_FREE_PARTS: tuple[str, ...] = ("lowerarm.L", "lowerarm.R", "hand.L", "hand.R")
+
+
+def _front_hair(pos: np.ndarray, col: np.ndarray, parts: np.ndarray, seen: np.ndarray,
+                hair_seen: np.ndarray, skin: np.ndarray | None, cfg: WrapFillConfig,
+                visible: np.ndarray, surf: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """(hair, face): indices of the Gaussians that show the hair round the face of a head seen from
+    the front (``hair.hair_and_face`` on its ``hair_seen`` Gaussians: strands lit and shadowed
+    alike) and of those in the face's colours, or None: no head, no hair of its own colour, or a
+    head seen behind its centre (a video that turned; ``_never_seen_behind`` on ``seen``, as the
+    fill decides it)."""
+    if "head" not in PART_INDEX:
         return None
     members = np.flatnonzero(parts == PART_INDEX["head"])
     if len(members) < cfg.k or not _never_seen_behind(pos, members, members[seen[members]], visible, surf, cfg):
@@ -514,9 +526,11 @@ def _front_hair_palette(pos: np.ndarray, col: np.ndarray, parts: np.ndarray, see
     src = members[hair_seen[members]]
     if len(src) < cfg.k:
         return None
-    hair = hair_sources(pos[src], col[src], centre[0], contrast=cfg.hair_contrast, min_share=cfg.hair_min_share,
-                        k=cfg.k, skin=skin)
-    return col[src][hair] if hair.sum() >= cfg.k else None
+    split = hair_and_face(pos[src], col[src], centre[0], contrast=cfg.hair_contrast, min_share=cfg.hair_min_share,
+                          k=cfg.k, skin=skin)
+    if split is None or split[0].sum() < cfg.k:
+        return None
+    return src[split[0]], src[split[1]]
 
 
 def _hair_coloured(src_col: np.ndarray, palette: np.ndarray, cfg: WrapFillConfig) -> np.ndarray:
@@ -636,11 +650,49 @@ def coat_colour(col: np.ndarray, parts: np.ndarray, seen: np.ndarray, cfg: WrapF
     return np.median(col[arms | layer], 0)
 
 
+def _hair_down_the_back(out: np.ndarray, pos: np.ndarray, parts: np.ndarray, seen: np.ndarray,
+                        done: np.ndarray, front_hair: tuple[np.ndarray, np.ndarray], views, cfg: WrapFillConfig,
+                        neighbours: np.ndarray | None) -> None:
+    """The unseen (not ``done``) Gaussians of ``hair_back_parts`` behind their part's centre that the
+    hair in the images covers take its colour there (``long_hair.hair_back_colors``), in ``out``.
+    The colours the hair is told from: the face's skin (its middle's seen Gaussians in the face's
+    colours), the clothes of the torso's lower half and of the garment layer beside it, and the
+    ``HAIR_FREE_PARTS`` (the forearms and hands), all ``seen``."""
+    behind = []
+    for name in cfg.hair_back_parts:
+        if name not in PART_INDEX:
+            continue
+        members = np.flatnonzero(parts == PART_INDEX[name])
+        if len(members):
+            todo = members[~done[members]]
+            behind.append(todo[pos[todo, 1] > pos[members, 1].mean()])
+    candidates = np.concatenate(behind) if behind else np.zeros(0, np.int64)
+    torso = parts == PART_INDEX.get("torso", -1)
+    if not len(candidates) or not torso.any():
+        return
+    middle = 0.5 * (pos[torso, 2].min() + pos[torso, 2].max())
+    free = np.isin(parts, [PART_INDEX[n] for n in HAIR_FREE_PARTS if n in PART_INDEX])
+    # the torso's and a garment layer's lower half: down to the torso's bottom (trousers and shoes
+    # are no rivals: black trousers hid a photo's black hair)
+    waist = np.isin(parts, [PART_INDEX["torso"], GARMENT_PART]) & (pos[:, 2] < middle) & (pos[:, 2] >= pos[torso, 2].min())
+    head = np.flatnonzero(parts == PART_INDEX["head"])
+    face = head[face_middle(pos[head])]
+    hair_idx, face_coloured_idx = front_hair
+    rivals = [np.intersect1d(face, face_coloured_idx), np.flatnonzero(seen & (waist | free))]
+    hair = hair_back_colors(len(pos), candidates, hair_idx, face, rivals, views, tolerance=cfg.palette_tolerance,
+                            hanging=parts[candidates] != PART_INDEX["head"],
+                            neck=np.flatnonzero(parts == PART_INDEX.get("neck", -1)))
+    if neighbours is not None:
+        hair = smooth_cover(hair, candidates, neighbours)
+    got = np.isfinite(hair).all(1)
+    out[got] = hair[got]
+
+
 def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | None = None,
                      config: WrapFillConfig = WrapFillConfig(), normals=None, no_mirror=None,
                      under_layer=None, layer_grid: tuple[int, int, int] | None = None,
                      hair_seen=None, surface_normals=None, cut_colors=None, row_seen=None,
-                     occluded_colors=None) -> torch.Tensor:
+                     occluded_colors=None, hair_views=None) -> torch.Tensor:
     """(N,3) float32 colours: the reliably seen Gaussians' own, the others (unseen, or seen only
     at grazing incidence when ``normals`` are given) filled as described in the module docstring.
     ``positions``, ``normals``: canonical (N,3); ``parts``: (N,) body-part indices; ``seen``: (N,)
@@ -715,9 +767,10 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     if cfg.hair_skin_from_hands:
         hands = np.isin(parts, [PART_INDEX[n] for n in cfg.hair_skin_parts if n in PART_INDEX]) & seen
         skin = skin_reference(col[hands])
-    # the colours of the hair a photo's head shows, for the parts it falls over (``hair_over_parts``)
-    hair_palette = _front_hair_palette(pos, col, parts, seen, seen if hair_seen is None else hair_seen, skin, cfg,
-                                       visible, surf)
+    # the hair a photo's head shows round the face: its colours for the parts it falls over
+    # (``hair_over_parts``), and where it falls in the images (``hair_back_parts``)
+    front_hair = _front_hair(pos, col, parts, seen, seen if hair_seen is None else hair_seen, skin, cfg, visible, surf)
+    hair_palette = None if front_hair is None or not cfg.hair_over_parts else col[front_hair[0]]
     over_hair = np.zeros(len(pos), bool)  # seen Gaussians in the hair's colour that are no source
     mirrored_across = np.zeros(len(pos), bool)  # a face's unseen front given its other side (``face_mirror_parts``)
     from_images = np.zeros(len(pos), bool)  # unseen Gaussians given what the images show there (``occluded_parts``)
@@ -997,6 +1050,8 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                 cnt[ok] += 1
             sm = acc / cnt[:, None]
             out[todo] = sm[todo]
+    if hair_views is not None and front_hair is not None and cfg.hair_back_parts:
+        _hair_down_the_back(out, pos, parts, seen, seen | ~visible, front_hair, hair_views, cfg, neighbours)
     if ul is not None:
         hide = (ul >= 0) & ~seen
         out[hide] = out[ul[hide]]

@@ -16,7 +16,7 @@ from ..avatar.layer_depth import match_layer_depth
 from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, layer_reached, layer_through,
-                          layer_training_views, occluded_colors_of)
+                          layer_training_views, occluded_colors_of, hair_views_of)
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
 # which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its
@@ -140,7 +140,8 @@ class Stage1Plan(StagePlan):
                         not_sources = through if not_sources is None else not_sources | through
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
-                                   not_sources=not_sources, ring_trained=ring_trained)
+                                   not_sources=not_sources, ring_trained=ring_trained,
+                                   hair_views=hair_views_of(state, context.data))
             # Stage II's pseudo-appearance and the editor carry colours from the same sources
             # (``AvatarState.source_flags``)
             state.colour_sources = None if not_sources is None else ~torch.as_tensor(not_sources).cpu().bool()

@@ -63,7 +63,8 @@ _COLOR_MARGIN = 1e-3
 
 @torch.no_grad()
 def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int = 0, grazing_rule: bool = True,
-                       not_sources: torch.Tensor | None = None, ring_trained: torch.Tensor | None = None) -> int:
+                       not_sources: torch.Tensor | None = None, ring_trained: torch.Tensor | None = None,
+                       hair_views=None) -> int:
     """Set the colour residual of every Gaussian the painted seen flags call unseen so that it
     decodes to the wrap-around fill's colour. Returns how many Gaussians were filled (0 when the
     avatar has no colour residual, sees nothing or sees everything). ``grazing_rule``: seen
@@ -73,7 +74,8 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     either (those seen by their blend weight alone, ``SeenRecount.blended_only``: many sit at the
     silhouette, where a photo's matting leaves a light fringe). ``ring_trained``: (N+M,) bool, the
     Gaussians whose decoded colour the training images shaped; an unseen one of the ``keep_ring``
-    that is not among them is filled too (None: the ring keeps every decoded colour)."""
+    that is not among them is filled too (None: the ring keeps every decoded colour). ``hair_views``:
+    the training frames in which hair worn down is read (``hair_views_of``; None: not read)."""
     model = state.model
     cfg = model.config
     if not cfg.color_residual:
@@ -95,7 +97,7 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
                               under_layer=model_body_under_layer(model), layer_grid=model.layer_grid(),
                               hair_seen=torch.as_tensor(erode(sources.numpy(), neighbours, min(erosion, 1))),
                               surface_normals=model.base_normals.cpu(), cut_colors=state.cut_colors,
-                              row_seen=sources, occluded_colors=state.occluded_colors)
+                              row_seen=sources, occluded_colors=state.occluded_colors, hair_views=hair_views)
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
     if ring_trained is not None:
         ring_trained = torch.as_tensor(ring_trained, dtype=torch.bool).cpu()
@@ -112,13 +114,20 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     return int(len(idx))
 
 
-def _frame_views(state: AvatarState, data: TrainingData):
-    """The training frames as ``appearance.cut_fill.FrameView``s, each posed when it is read (the
-    frame's whole image, not the crop training works on)."""
-    for i in data.frames:
+def _frame_views(state: AvatarState, data: TrainingData, frames=None):
+    """The training frames (``frames``, or all) as ``appearance.cut_fill.FrameView``s, each posed
+    when it is read (the frame's whole image, not the crop training works on)."""
+    for i in data.frames if frames is None else frames:
         f = data.scene.frames[i]
-        uv, z = f.camera.project(state.posed(i).means.detach().cpu().double().numpy())
+        with torch.no_grad():
+            uv, z = f.camera.project(state.posed(i).means.detach().cpu().double().numpy())
         yield FrameView(uv, z > 0, f.image, f.mask)
+
+
+def hair_views_of(state: AvatarState, data: TrainingData, max_frames: int = 8):
+    """The training frames the wrap fill reads hair worn down in (``appearance.long_hair``): up to
+    ``max_frames`` spread over the sequence, each posed when it is read."""
+    return _frame_views(state, data, spread_frames(list(data.frames), max_frames))
 
 
 @torch.no_grad()
