@@ -14,7 +14,7 @@ from reconstruct.avatar.garment_layer import GARMENT_PART
 from reconstruct.body.parts import PART_INDEX
 from reconstruct.appearance.hair import hair_sources
 from reconstruct.appearance.wrap_fill import (WrapFillConfig, _left_right_mirror, column_middle, height_profile,
-                                              wrap_fill_colors)
+                                              long_hair_colors, wrap_fill_colors)
 
 RED, WHITE, BLUE, SKIN, HAIR, YELLOW, GREEN = (np.array(c, float) for c in (
     (0.8, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.2, 0.8), (0.9, 0.7, 0.6), (0.2, 0.1, 0.05), (1.0, 0.9, 0.0),
@@ -1520,7 +1520,9 @@ def test_long_hair_in_a_photo_covers_the_back_of_the_neck_and_shoulders():
     seen = np.r_[deg <= 80, True, front[len(head) + 1:]]
     col = np.where(seen[:, None], truth, 0.5)
     long_hair = _photo_of(pos, truth, seen, strands_to=1.35)
-    out = wrap_fill_colors(pos, parts, seen, col, None, hair_views=[long_hair]).numpy()
+    hair = long_hair_colors(pos, parts, seen, col, [long_hair]).numpy()
+    assert np.isnan(hair[seen]).all()
+    out = wrap_fill_colors(pos, parts, seen, col, None, hair_colors=hair).numpy()
     torso_back = (parts == PART_INDEX["torso"]) & ~seen
     under = torso_back & (pos[:, 2] > 1.38) & (np.abs(pos[:, 0]) < 0.09)
     assert under.sum() > 50
@@ -1529,8 +1531,14 @@ def test_long_hair_in_a_photo_covers_the_back_of_the_neck_and_shoulders():
     assert np.abs(out[neck_back] - HAIR).max(1).mean() < 0.05
     low = torso_back & (pos[:, 2] < 1.28)
     assert np.abs(out[low] - BLUE).max(1).max() < 0.05
+    # the head's seen Gaussians keep their colours; a head that shows no hair reads none
+    np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
+    bald = np.where(seen[:, None] & (parts == PART_INDEX["head"])[:, None], SKIN, col)
+    assert np.isnan(long_hair_colors(pos, parts, seen, bald, [long_hair]).numpy()).all()
+    with pytest.raises(ValueError, match="hair_colors must have shape"):
+        wrap_fill_colors(pos, parts, seen, col, None, hair_colors=hair[:-1])
     # without the images, and with hair cut at the jaw, the upper back is the shirt's
-    for views in (None, [_photo_of(pos, truth, seen)]):
-        plain = wrap_fill_colors(pos, parts, seen, col, None, hair_views=views).numpy()
+    for hair in (None, long_hair_colors(pos, parts, seen, col, [_photo_of(pos, truth, seen)])):
+        plain = wrap_fill_colors(pos, parts, seen, col, None, hair_colors=hair).numpy()
         assert np.abs(plain[under] - BLUE).max(1).mean() < 0.05
         assert np.abs(plain[neck_back] - HAIR).max(1).mean() > 0.2

@@ -287,7 +287,7 @@ def test_colour_sources_round_trip_through_the_state_dict(stage1):
 
 
 def _colours_round_trip(state, key: str, colours: torch.Tensor, where: torch.Tensor) -> None:
-    """Per-Gaussian colours of the state (``key``: ``cut_colors``, ``occluded_colors``; NaN but
+    """Per-Gaussian colours of the state (``key``: ``cut_colors``, ``occluded_colors``, ``hair_colors``; NaN but
     ``where``) are saved and loaded with it and copied by ``frozen``; a checkpoint without them
     (from before them) loads None, one of the wrong shape is refused."""
     from reconstruct.avatar.state import AvatarState
@@ -363,3 +363,34 @@ def test_occluded_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1)
     near = ((runs[0][front] - torch.tensor([0.3, 0.6, 0.2])).abs().amax(1) < 0.02).float().mean()
     assert near > 0.8
     assert ((runs[1][front] - torch.tensor([0.3, 0.6, 0.2])).abs().amax(1) < 0.02).float().mean() < 0.05
+
+
+def test_hair_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1):
+    """``AvatarState.hair_colors`` (Stage I's finish: hair worn down, read in the images) are saved
+    and loaded with the state, copied by ``frozen``, and Stage II's pseudo-appearance gives them to
+    the unseen Gaussians they cover, as Stage I's fill did."""
+    from reconstruct.appearance.pseudo_appearance import pseudo_appearance
+    from reconstruct.body.parts import PART_INDEX
+
+    state = stage1.state
+    assert state.hair_colors is not None  # the finish read the frames (the tiny scene's hair: none)
+    model = state.model
+    parts = model.parts()
+    back = torch.as_tensor(np.isin(parts, [PART_INDEX["neck"], PART_INDEX["torso"]])) & (model.base_positions.cpu()[:, 1] > 0)
+    hair = torch.full((model.num_gaussians, 3), float("nan"))
+    hair[back] = torch.tensor([0.4, 0.25, 0.1])
+    _colours_round_trip(state, "hair_colors", hair, back)
+    s2 = _start(stage1, _cfg())
+    nb = model.neighbours()
+    colors = torch.rand((model.num_gaussians, 3), generator=torch.Generator().manual_seed(0))
+    s2.state.colour_sources = None
+    trusted = s2.state.trusted_seen.clone()
+    runs = []
+    for given in (hair, None):
+        s2.state.hair_colors = given
+        runs.append(pseudo_appearance(s2.state, trusted, colors, nb, 0, grazing_rule=False))
+    painted = back & ~trusted
+    assert int(painted.sum()) > 50
+    assert torch.allclose(runs[0][painted], torch.tensor([0.4, 0.25, 0.1]).expand(int(painted.sum()), 3), atol=1e-6)
+    assert ((runs[1][painted] - torch.tensor([0.4, 0.25, 0.1])).abs().amax(1) < 0.02).float().mean() < 0.05
+    assert torch.equal(runs[0][~painted], runs[1][~painted])

@@ -39,5 +39,5 @@ def pseudo_appearance(state, trusted: torch.Tensor, colors: torch.Tensor, neighb
                                layer_grid=model.layer_grid(), hair_seen=state.trusted_sources(neighbours, min(erosion, 1)),
                                surface_normals=model.base_normals.cpu(), cut_colors=state.cut_colors,
                                row_seen=state.trusted_sources(neighbours, 0),
-                               occluded_colors=state.occluded_colors)
+                               occluded_colors=state.occluded_colors, hair_colors=state.hair_colors)
     return torch.where((trusted & ~sources)[:, None], colors.clamp(0, 1).to(out.dtype), out)

@@ -299,7 +299,8 @@ class WrapFillConfig:
     # the layer was that: the group photo's second woman, her brown coat open over a light dress, had
     # a light upper back (0.89 0.73 0.63) under a brown coat (0.70 0.50 0.37)
     coat_back: bool = True
-    # hair worn down, read in the images (given ``wrap_fill_colors(hair_views=...)``; ``long_hair.py``):
+    # hair worn down, read in the images (``long_hair_colors``, given as ``wrap_fill_colors(hair_colors=...)``;
+    # ``long_hair.py``):
     # the unseen Gaussians of these parts behind their part's centre, on a head seen from the front
     # only, that project into the span the hair covers on their image row take the hair's colour on
     # that row. The back of a long-haired photo's head ended at the skull, the neck and upper back
@@ -314,6 +315,16 @@ def grazing_rule_for(stage1_settings) -> bool:
     and repainting them loses detail (seed 0, 10 minutes: unseen 28.59 dB as filled with the rule,
     29.26 without; Stage II's pseudo-appearance painted on: 26.11 with it, 29.19 without)."""
     return not getattr(stage1_settings, "random_background", False)
+
+
+def _per_gaussian(colours, n: int, name: str) -> np.ndarray | None:
+    """``colours`` as an (n,3) array (NaN where none), or None; ValueError naming ``name`` otherwise."""
+    if colours is None:
+        return None
+    out = _as_np(colours)
+    if out.shape != (n, 3):
+        raise ValueError(f"wrap_fill_colors: {name} must have shape ({n}, 3), found {out.shape}")
+    return out
 
 
 def _as_np(x, dtype=np.float64) -> np.ndarray:
@@ -650,14 +661,15 @@ def coat_colour(col: np.ndarray, parts: np.ndarray, seen: np.ndarray, cfg: WrapF
     return np.median(col[arms | layer], 0)
 
 
-def _hair_down_the_back(out: np.ndarray, pos: np.ndarray, parts: np.ndarray, seen: np.ndarray,
-                        done: np.ndarray, front_hair: tuple[np.ndarray, np.ndarray], views, cfg: WrapFillConfig,
-                        neighbours: np.ndarray | None) -> None:
-    """The unseen (not ``done``) Gaussians of ``hair_back_parts`` behind their part's centre that the
-    hair in the images covers take its colour there (``long_hair.hair_back_colors``), in ``out``.
-    The colours the hair is told from: the face's skin (its middle's seen Gaussians in the face's
-    colours), the clothes of the torso's lower half and of the garment layer beside it, and the
-    ``HAIR_FREE_PARTS`` (the forearms and hands), all ``seen``."""
+def _hair_down_the_back(pos: np.ndarray, parts: np.ndarray, seen: np.ndarray, done: np.ndarray,
+                        front_hair: tuple[np.ndarray, np.ndarray], views, cfg: WrapFillConfig,
+                        neighbours: np.ndarray | None) -> np.ndarray:
+    """(N,3): for the unseen (not ``done``) Gaussians of ``hair_back_parts`` behind their part's
+    centre that the hair in the images covers, its colour there (``long_hair.hair_back_colors``);
+    NaN for the others. The colours the hair is told from: the face's skin (its middle's seen
+    Gaussians in the face's colours), the clothes of the torso's lower half and of the garment
+    layer beside it, and the ``HAIR_FREE_PARTS`` (the forearms and hands), all ``seen``."""
+    none = np.full((len(pos), 3), np.nan, np.float32)
     behind = []
     for name in cfg.hair_back_parts:
         if name not in PART_INDEX:
@@ -669,7 +681,7 @@ def _hair_down_the_back(out: np.ndarray, pos: np.ndarray, parts: np.ndarray, see
     candidates = np.concatenate(behind) if behind else np.zeros(0, np.int64)
     torso = parts == PART_INDEX.get("torso", -1)
     if not len(candidates) or not torso.any():
-        return
+        return none
     middle = 0.5 * (pos[torso, 2].min() + pos[torso, 2].max())
     free = np.isin(parts, [PART_INDEX[n] for n in HAIR_FREE_PARTS if n in PART_INDEX])
     # the torso's and a garment layer's lower half: down to the torso's bottom (trousers and shoes
@@ -682,17 +694,77 @@ def _hair_down_the_back(out: np.ndarray, pos: np.ndarray, parts: np.ndarray, see
     hair = hair_back_colors(len(pos), candidates, hair_idx, face, rivals, views, tolerance=cfg.palette_tolerance,
                             hanging=parts[candidates] != PART_INDEX["head"],
                             neck=np.flatnonzero(parts == PART_INDEX.get("neck", -1)))
-    if neighbours is not None:
-        hair = smooth_cover(hair, candidates, neighbours)
-    got = np.isfinite(hair).all(1)
-    out[got] = hair[got]
+    return hair if neighbours is None else smooth_cover(hair, candidates, neighbours)
+
+
+@dataclass
+class _Given:
+    """``wrap_fill_colors``' inputs as arrays, checked: the reliable ``seen`` flags, the hair's
+    (``hair_seen``, or None), the surface normals (``surf``, or None), a garment layer's cover of the
+    body (``ul``, or None) and what a camera could see (``visible``: not the body under the cloth)."""
+
+    pos: np.ndarray
+    col: np.ndarray
+    parts: np.ndarray
+    seen: np.ndarray
+    hair_seen: np.ndarray | None
+    surf: np.ndarray | None
+    ul: np.ndarray | None
+    visible: np.ndarray
+
+
+def _given(positions, parts, seen, colors, normals, hair_seen, surface_normals, under_layer, cfg: WrapFillConfig) -> _Given:
+    pos = _as_np(positions)
+    parts = np.asarray(parts)
+    seen = reliable_seen(_as_np(seen, bool), None if normals is None else _as_np(normals), parts, cfg)
+    surf = None if surface_normals is None else _as_np(surface_normals)
+    if surf is not None and surf.shape != (len(pos), 3):
+        raise ValueError(f"wrap_fill_colors: surface_normals must have shape ({len(pos)}, 3), found {surf.shape}")
+    ul = None
+    if under_layer is not None:
+        ul = np.asarray(under_layer, np.int64)
+        if ul.shape != (len(pos),):
+            raise ValueError(f"wrap_fill_colors: under_layer must have shape ({len(pos)},), found {ul.shape}")
+    return _Given(pos, _as_np(colors), parts, seen, None if hair_seen is None else _as_np(hair_seen, bool) | seen,
+                  surf, ul, np.ones(len(pos), bool) if ul is None else ul < 0)
+
+
+def _skin_and_front_hair(g: _Given, cfg: WrapFillConfig):
+    """(the hands' skin colour or None, ``_front_hair`` or None): which of the head's colour clusters
+    is the face (``hair.py``), and the hair a photo's head shows round the face."""
+    skin = None
+    if cfg.hair_skin_from_hands:
+        hands = np.isin(g.parts, [PART_INDEX[n] for n in cfg.hair_skin_parts if n in PART_INDEX]) & g.seen
+        skin = skin_reference(g.col[hands])
+    return skin, _front_hair(g.pos, g.col, g.parts, g.seen, g.seen if g.hair_seen is None else g.hair_seen, skin, cfg,
+                             g.visible, g.surf)
+
+
+def long_hair_colors(positions, parts, seen, colors, views, neighbours: np.ndarray | None = None,
+                     config: WrapFillConfig = WrapFillConfig(), normals=None, under_layer=None, hair_seen=None,
+                     surface_normals=None) -> torch.Tensor:
+    """(N,3) float32: hair worn down, read in the training frames ``views`` (``cut_fill.FrameView``s,
+    iterated once, and only when a head seen from the front shows hair of its own colour;
+    ``long_hair.py``): for the unseen Gaussians of ``hair_back_parts`` behind their part's centre
+    that it covers, its colour; NaN for the others. The arguments as ``wrap_fill_colors``', which
+    takes the result as ``hair_colors`` (Stage I's finish keeps it: ``AvatarState.hair_colors``)."""
+    cfg = config
+    g = _given(positions, parts, seen, colors, normals, hair_seen, surface_normals, under_layer, cfg)
+    none = torch.full((len(g.pos), 3), float("nan"))
+    if not cfg.hair_back_parts or not g.seen.any() or g.seen.all():
+        return none
+    _, front_hair = _skin_and_front_hair(g, cfg)
+    if front_hair is None:
+        return none
+    return torch.as_tensor(_hair_down_the_back(g.pos, g.parts, g.seen, g.seen | ~g.visible, front_hair, views, cfg,
+                                               neighbours), dtype=torch.float32)
 
 
 def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | None = None,
                      config: WrapFillConfig = WrapFillConfig(), normals=None, no_mirror=None,
                      under_layer=None, layer_grid: tuple[int, int, int] | None = None,
                      hair_seen=None, surface_normals=None, cut_colors=None, row_seen=None,
-                     occluded_colors=None, hair_views=None) -> torch.Tensor:
+                     occluded_colors=None, hair_colors=None) -> torch.Tensor:
     """(N,3) float32 colours: the reliably seen Gaussians' own, the others (unseen, or seen only
     at grazing incidence when ``normals`` are given) filled as described in the module docstring.
     ``positions``, ``normals``: canonical (N,3); ``parts``: (N,) body-part indices; ``seen``: (N,)
@@ -729,31 +801,15 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     unseen ones among them take it (``cut_fill``, ``WrapFillConfig.cut_fill``)."""
     cfg = config
     no_mirror = None if no_mirror is None else _as_np(no_mirror, bool)
-    pos = _as_np(positions)
-    col = _as_np(colors)
-    parts = np.asarray(parts)
-    seen = reliable_seen(_as_np(seen, bool), None if normals is None else _as_np(normals), parts, cfg)
-    hair_seen = None if hair_seen is None else _as_np(hair_seen, bool) | seen
+    g = _given(positions, parts, seen, colors, normals, hair_seen, surface_normals, under_layer, cfg)
+    pos, col, parts, seen, hair_seen, surf, ul, visible = g.pos, g.col, g.parts, g.seen, g.hair_seen, g.surf, g.ul, g.visible
     if row_seen is not None:
         row_seen = _as_np(row_seen, bool)
         if row_seen.shape != seen.shape:
             raise ValueError(f"wrap_fill_colors: row_seen must have shape {seen.shape}, found {row_seen.shape}")
         row_seen = reliable_seen(row_seen, None if normals is None else _as_np(normals), parts, cfg) | seen
-    surf = None if surface_normals is None else _as_np(surface_normals)
-    if surf is not None and surf.shape != (len(pos), 3):
-        raise ValueError(f"wrap_fill_colors: surface_normals must have shape ({len(pos)}, 3), found {surf.shape}")
-    occluded = None
-    if occluded_colors is not None:
-        occluded = _as_np(occluded_colors)
-        if occluded.shape != (len(pos), 3):
-            raise ValueError(f"wrap_fill_colors: occluded_colors must have shape ({len(pos)}, 3), found {occluded.shape}")
-    ul = None
-    if under_layer is not None:
-        ul = np.asarray(under_layer, np.int64)
-        if ul.shape != (len(pos),):
-            raise ValueError(f"wrap_fill_colors: under_layer must have shape ({len(pos)},), found {ul.shape}")
-    # what a camera could see of each part: not the body under a garment layer's cloth
-    visible = np.ones(len(pos), bool) if ul is None else ul < 0
+    occluded = _per_gaussian(occluded_colors, len(pos), "occluded_colors")
+    hair_back = _per_gaussian(hair_colors, len(pos), "hair_colors")
     out = col.copy()
     unseen_all = np.flatnonzero(~seen)
     if len(unseen_all) == 0 or not seen.any():
@@ -763,13 +819,9 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     periodic = np.zeros(len(pos), bool)  # unseen Gaussians a repeating pattern was carried onto
     layer_rows_only = np.zeros(len(pos), bool)  # a front-only layer filled by rows (``layer_profile_rows``)
     neckline_only: list[int] = []  # parts whose band was all neckline: filled from their neighbours
-    skin = None  # the hands' colour: which of the head's colour clusters is the face (``hair.py``)
-    if cfg.hair_skin_from_hands:
-        hands = np.isin(parts, [PART_INDEX[n] for n in cfg.hair_skin_parts if n in PART_INDEX]) & seen
-        skin = skin_reference(col[hands])
-    # the hair a photo's head shows round the face: its colours for the parts it falls over
-    # (``hair_over_parts``), and where it falls in the images (``hair_back_parts``)
-    front_hair = _front_hair(pos, col, parts, seen, seen if hair_seen is None else hair_seen, skin, cfg, visible, surf)
+    # the hands' colour (which of the head's colour clusters is the face) and the hair a photo's head
+    # shows round the face: its colours for the parts it falls over (``hair_over_parts``)
+    skin, front_hair = _skin_and_front_hair(g, cfg)
     hair_palette = None if front_hair is None or not cfg.hair_over_parts else col[front_hair[0]]
     over_hair = np.zeros(len(pos), bool)  # seen Gaussians in the hair's colour that are no source
     mirrored_across = np.zeros(len(pos), bool)  # a face's unseen front given its other side (``face_mirror_parts``)
@@ -1050,14 +1102,12 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                 cnt[ok] += 1
             sm = acc / cnt[:, None]
             out[todo] = sm[todo]
-    if hair_views is not None and front_hair is not None and cfg.hair_back_parts:
-        _hair_down_the_back(out, pos, parts, seen, seen | ~visible, front_hair, hair_views, cfg, neighbours)
+    if hair_back is not None:  # hair worn down, read in the images (``long_hair_colors``)
+        got = np.isfinite(hair_back).all(1) & ~seen & visible
+        out[got] = hair_back[got]
     if ul is not None:
         hide = (ul >= 0) & ~seen
         out[hide] = out[ul[hide]]
     if cut_colors is not None and cfg.cut_fill:
-        cut = _as_np(cut_colors)
-        if cut.shape != (len(pos), 3):
-            raise ValueError(f"wrap_fill_colors: cut_colors must have shape ({len(pos)}, 3), found {cut.shape}")
-        out = apply_cut_colors(out, parts, seen, cut, under_layer=ul)
+        out = apply_cut_colors(out, parts, seen, _per_gaussian(cut_colors, len(pos), "cut_colors"), under_layer=ul)
     return torch.as_tensor(np.clip(out, 0.0, 1.0), dtype=torch.float32)

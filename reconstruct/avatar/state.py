@@ -70,6 +70,10 @@ class AvatarState:
         # Stage I's finish, given to the fills (``appearance/occluded_fill``). None: not read (runs
         # from before it)
         self.occluded_colors: torch.Tensor | None = None
+        # (N,3) float: for the unseen Gaussians behind a photo's head, neck and back that hair worn
+        # down covers, its colour as the images show it, NaN for the others; set by Stage I's
+        # finish, given to the fills (``appearance/long_hair``). None: not read (runs from before it)
+        self.hair_colors: torch.Tensor | None = None
         self.edits = EditList((), model.num_gaussians)
         self._transforms: dict[int, torch.Tensor] = {}
         self._articulations: dict[int, torch.Tensor] = {}
@@ -236,6 +240,7 @@ class AvatarState:
         f.colour_sources = None if self.colour_sources is None else self.colour_sources.clone()
         f.cut_colors = None if self.cut_colors is None else self.cut_colors.clone()
         f.occluded_colors = None if self.occluded_colors is None else self.occluded_colors.clone()
+        f.hair_colors = None if self.hair_colors is None else self.hair_colors.clone()
         f.edits = self.edits  # immutable
         f._transforms = dict(self._transforms)
         f._articulations = dict(self._articulations)
@@ -250,7 +255,8 @@ class AvatarState:
                "trusted_seen": None if self._trusted_seen is None else self._trusted_seen.clone(),
                "colour_sources": None if self.colour_sources is None else self.colour_sources.clone(),
                "cut_colors": None if self.cut_colors is None else self.cut_colors.clone(),
-               "occluded_colors": None if self.occluded_colors is None else self.occluded_colors.clone()}
+               "occluded_colors": None if self.occluded_colors is None else self.occluded_colors.clone(),
+               "hair_colors": None if self.hair_colors is None else self.hair_colors.clone()}
         if self.model.layer is not None:
             out["garment_layer"] = self.model.layer.to_state()
         return out
@@ -281,6 +287,7 @@ class AvatarState:
         self.colour_sources = None if cs is None else cs.clone().bool()
         self.cut_colors = self._colours_in(state, "cut_colors")  # absent in checkpoints from before it
         self.occluded_colors = self._colours_in(state, "occluded_colors")
+        self.hair_colors = self._colours_in(state, "hair_colors")
 
     def _colours_in(self, state: dict, key: str) -> torch.Tensor | None:
         """``state[key]``, one colour per Gaussian (NaN where none), checked; None where absent."""
@@ -299,6 +306,7 @@ class AvatarState:
         self.colour_sources = None
         self.cut_colors = None
         self.occluded_colors = None
+        self.hair_colors = None
         self.edits = EditList((), model.num_gaussians)
 
     @torch.no_grad()

@@ -48,7 +48,7 @@ from scipy.ndimage import binary_dilation
 from ..appearance.cut_fill import FrameView, cut_colors
 from ..appearance.occluded_fill import occluded_colors
 from ..appearance.propagation import erode, erode_by_part
-from ..appearance.wrap_fill import WrapFillConfig, wrap_fill_colors
+from ..appearance.wrap_fill import WrapFillConfig, long_hair_colors, wrap_fill_colors
 from ..avatar.garment_layer import spread_frames
 from ..avatar.layer_cover import model_body_under_layer
 from ..avatar.layer_through import model_layer_shows_body, model_layer_shows_limbs
@@ -75,7 +75,8 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     silhouette, where a photo's matting leaves a light fringe). ``ring_trained``: (N+M,) bool, the
     Gaussians whose decoded colour the training images shaped; an unseen one of the ``keep_ring``
     that is not among them is filled too (None: the ring keeps every decoded colour). ``hair_views``:
-    the training frames in which hair worn down is read (``hair_views_of``; None: not read)."""
+    the training frames in which hair worn down is read (``hair_views_of``): its colours are kept
+    as ``state.hair_colors`` for the fills after this one (None: the state's are used as they are)."""
     model = state.model
     cfg = model.config
     if not cfg.color_residual:
@@ -92,12 +93,18 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     if not bool(trusted.any()):
         trusted = sources
     colors = model.canonical(None).colors.detach().cpu()
+    normals = model.base_normals.cpu() if grazing_rule else None
+    under = model_body_under_layer(model)
+    hair_seen = torch.as_tensor(erode(sources.numpy(), neighbours, min(erosion, 1)))
+    if hair_views is not None:
+        state.hair_colors = long_hair_colors(model.base_positions.cpu(), model.parts(), trusted, colors, hair_views,
+                                             neighbours, normals=normals, under_layer=under, hair_seen=hair_seen,
+                                             surface_normals=model.base_normals.cpu())
     filled = wrap_fill_colors(model.base_positions.cpu(), model.parts(), trusted, colors, neighbours,
-                              normals=model.base_normals.cpu() if grazing_rule else None, no_mirror=state.edits.redone,
-                              under_layer=model_body_under_layer(model), layer_grid=model.layer_grid(),
-                              hair_seen=torch.as_tensor(erode(sources.numpy(), neighbours, min(erosion, 1))),
+                              normals=normals, no_mirror=state.edits.redone, under_layer=under,
+                              layer_grid=model.layer_grid(), hair_seen=hair_seen,
                               surface_normals=model.base_normals.cpu(), cut_colors=state.cut_colors,
-                              row_seen=sources, occluded_colors=state.occluded_colors, hair_views=hair_views)
+                              row_seen=sources, occluded_colors=state.occluded_colors, hair_colors=state.hair_colors)
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
     if ring_trained is not None:
         ring_trained = torch.as_tensor(ring_trained, dtype=torch.bool).cpu()
