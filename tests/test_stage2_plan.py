@@ -307,6 +307,25 @@ def _colours_round_trip(state, key: str, colours: torch.Tensor, where: torch.Ten
         other.load_state_dict(d)
 
 
+def _pseudo_with_and_without(stage1, key: str, colours: torch.Tensor, untrusted: torch.Tensor | None = None):
+    """Stage II's pseudo-appearance of random colours with the state's ``key`` colours given, and
+    without them, on the trusted flags less ``untrusted``: (with, without, those trusted flags)."""
+    from reconstruct.appearance.pseudo_appearance import pseudo_appearance
+
+    s2 = _start(stage1, _cfg())
+    model = s2.state.model
+    colors = torch.rand((model.num_gaussians, 3), generator=torch.Generator().manual_seed(0))
+    s2.state.colour_sources = None
+    trusted = s2.state.trusted_seen.clone()
+    if untrusted is not None:
+        trusted[untrusted] = False
+    runs = []
+    for given in (colours, None):
+        setattr(s2.state, key, given)
+        runs.append(pseudo_appearance(s2.state, trusted, colors, model.neighbours(), 0, grazing_rule=False))
+    return runs[0], runs[1], trusted
+
+
 def test_cut_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1):
     """``AvatarState.cut_colors`` (Stage I's finish: the colours for the Gaussians in no training
     image) are saved and loaded with the state, copied by ``frozen``, and Stage II's
@@ -347,19 +366,8 @@ def test_occluded_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1)
     occ[neck] = torch.tensor([0.3, 0.6, 0.2])
     _colours_round_trip(state, "occluded_colors", occ, neck)
     # a neck with no trusted Gaussian (a photo's, under the chin): its front takes them
-    from reconstruct.appearance.pseudo_appearance import pseudo_appearance
-
-    s2 = _start(stage1, _cfg())
-    nb = model.neighbours()
-    colors = torch.rand((model.num_gaussians, 3), generator=torch.Generator().manual_seed(0))
-    s2.state.colour_sources = None
-    trusted = s2.state.trusted_seen.clone()
-    trusted[neck] = False
+    runs = _pseudo_with_and_without(stage1, "occluded_colors", occ, untrusted=neck)[:2]
     front = neck & (model.base_normals.cpu()[:, 1] < 0)
-    runs = []
-    for given in (occ, None):
-        s2.state.occluded_colors = given
-        runs.append(pseudo_appearance(s2.state, trusted, colors, nb, 0, grazing_rule=False))
     near = ((runs[0][front] - torch.tensor([0.3, 0.6, 0.2])).abs().amax(1) < 0.02).float().mean()
     assert near > 0.8
     assert ((runs[1][front] - torch.tensor([0.3, 0.6, 0.2])).abs().amax(1) < 0.02).float().mean() < 0.05
@@ -369,7 +377,6 @@ def test_hair_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1):
     """``AvatarState.hair_colors`` (Stage I's finish: hair worn down, read in the images) are saved
     and loaded with the state, copied by ``frozen``, and Stage II's pseudo-appearance gives them to
     the unseen Gaussians they cover, as Stage I's fill did."""
-    from reconstruct.appearance.pseudo_appearance import pseudo_appearance
     from reconstruct.body.parts import PART_INDEX
 
     state = stage1.state
@@ -380,15 +387,7 @@ def test_hair_colours_round_trip_and_reach_stage2s_pseudo_appearance(stage1):
     hair = torch.full((model.num_gaussians, 3), float("nan"))
     hair[back] = torch.tensor([0.4, 0.25, 0.1])
     _colours_round_trip(state, "hair_colors", hair, back)
-    s2 = _start(stage1, _cfg())
-    nb = model.neighbours()
-    colors = torch.rand((model.num_gaussians, 3), generator=torch.Generator().manual_seed(0))
-    s2.state.colour_sources = None
-    trusted = s2.state.trusted_seen.clone()
-    runs = []
-    for given in (hair, None):
-        s2.state.hair_colors = given
-        runs.append(pseudo_appearance(s2.state, trusted, colors, nb, 0, grazing_rule=False))
+    *runs, trusted = _pseudo_with_and_without(stage1, "hair_colors", hair)
     painted = back & ~trusted
     assert int(painted.sum()) > 50
     assert torch.allclose(runs[0][painted], torch.tensor([0.4, 0.25, 0.1]).expand(int(painted.sum()), 3), atol=1e-6)
