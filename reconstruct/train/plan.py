@@ -81,7 +81,8 @@ class Stage1Plan(StagePlan):
 
     def finish(self, context: StepContext) -> str | None:
         """The seen flags are recounted on the person (``seen_on_person``, train/seen_recount.py) and
-        those whose colour training never touched are unmarked (``seen_trained_only``), then the never-seen Gaussians take the wrap-around fill's colours and, on a garment layer, the
+        those whose colour training never touched are unmarked (``seen_trained_only``), then the never-seen Gaussians take the wrap-around fill's colours (with hair worn down read in
+        the frames: ``AvatarState.hair_colors``) and, on a garment layer, the
         trained cloth's opacity at their height (``fill_unseen``). Last, a garment layer's front and
         back are moved in depth as far as training pulled its sides in (``layer_depth_match``)."""
         state, notes, s = context.state, [], self.settings
@@ -147,6 +148,9 @@ class Stage1Plan(StagePlan):
             state.colour_sources = None if not_sources is None else ~torch.as_tensor(not_sources).cpu().bool()
             if n:
                 notes.append(f"{n} Gaussians no training view saw were painted with the seen side's colours")
+            hair = 0 if state.hair_colors is None else int(torch.isfinite(state.hair_colors).all(1).sum())
+            if hair:
+                notes.append(f"{hair} of them behind the head, neck and back took the hair the images show falling")
             if n_layer:
                 notes.append(f"{n_layer} garment-layer Gaussians no training camera faced took the trained cloth's opacity at their height")
         if s.layer_depth_match and state.model.layer is not None:
