@@ -315,3 +315,54 @@ def test_old_cache_folders_get_front_leak_information(monkeypatch, tmp_path):
         if va.front_leak is not None:
             assert np.array_equal(va.front_leak.regions, vb.front_leak.regions)
     assert all((v.front_leak is None) == v.seen for v in read_scene(folder).eval_views)  # and written back
+
+
+def test_long_hair_is_painted_down_the_back_and_over_the_shoulders_and_nothing_else_changes():
+    """``hair=long`` paints the hair's colour on the back of the neck and the upper back to
+    ``LONG_HAIR_FALL`` below the neck's joint, and as two strands over the shoulders in front; every
+    other texel, and the draws (the same palette and choices), are the drawn hair's."""
+    from reconstruct.body.anny_backend import random_phenotype
+    from reconstruct.body.uv_map import build_uv_map
+    from reconstruct.data.scene import BodySpec
+    from reconstruct.data.synthetic.clothing import (LONG_HAIR_FALL, LONG_HAIR_HALF_WIDTH, STRAND_FALL, STRAND_IN,
+                                                     STRAND_OUT, _Geometry, paint_clothing)
+
+    rng = np.random.default_rng(3)
+    body = BodySpec.anny(random_phenotype(rng), 5.0).build()
+    state = rng.bit_generator.state
+    drawn = paint_clothing(body, rng, 256, "garment")
+    after_drawn = rng.bit_generator.state
+    rng.bit_generator.state = state
+    long = paint_clothing(body, rng, 256, "garment", hair="long")
+    g = _Geometry(body, 256)
+    uv = build_uv_map(body, 256)
+    hair = drawn.texel_colors[(uv.parts == PART_INDEX["head"]) & (uv.normals[:, 1].numpy() > 0.5)]
+    hair = np.median(hair, 0)
+    changed = np.abs(long.texel_colors - drawn.texel_colors).max(1) > 1e-9
+    assert changed.sum() > 200
+    np.testing.assert_allclose(long.texel_colors[changed], np.tile(hair, (int(changed.sum()), 1)), atol=0.02)
+    x = np.abs(g.p[:, 0] - g.head[0])
+    below = g.neck_z - g.p[:, 2]
+    trunk = np.isin(uv.parts, [PART_INDEX["torso"], PART_INDEX["neck"]])
+    back = trunk & (g.front < 0.5) & (x <= LONG_HAIR_HALF_WIDTH) & (below <= LONG_HAIR_FALL)
+    strands = trunk & (g.front >= 0.5) & (x >= STRAND_IN) & (x <= STRAND_OUT) & (below <= STRAND_FALL)
+    neck_back = (uv.parts == PART_INDEX["neck"]) & (g.front < 0.5)
+    covered = back | strands | neck_back
+    assert not changed[~covered].any()
+    assert np.abs(long.texel_colors[covered] - hair).max(1).max() < 0.02
+    assert long.description["hair"]["long"] and "long" not in drawn.description["hair"]
+    assert {k: v for k, v in long.description.items() if k != "hair"} == {k: v for k, v in drawn.description.items() if k != "hair"}
+    assert rng.bit_generator.state == after_drawn  # the same draws: the scene's motion is the same
+
+
+def test_long_hair_is_a_garment_models_choice_and_names_its_scene():
+    from reconstruct.data.load import parse_synthetic_spec
+    from reconstruct.data.synthetic.generator import SyntheticConfig, synthetic_scene_name
+
+    cfg = parse_synthetic_spec("synthetic:seed=2,frames=1,hair=long")
+    assert cfg.hair == "long" and synthetic_scene_name(cfg) == "synthetic-seed2-garment-longhair"
+    assert synthetic_scene_name(SyntheticConfig(seed=2)) == "synthetic-seed2-garment"
+    with pytest.raises(ValueError, match="hair must be one of"):
+        SyntheticConfig(hair="curly")
+    with pytest.raises(ValueError, match="hair must be one of"):
+        SyntheticConfig(hair="long", clothing="independent")

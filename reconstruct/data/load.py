@@ -57,7 +57,8 @@ def parse_synthetic_spec(spec: str) -> SyntheticConfig:
     """``synthetic:seed=3,frames=40,size=256,clothing=independent`` -> SyntheticConfig (keys: the
     config's fields, plus the short names ``frames``, ``size`` and ``azimuths``; ``clothing`` is
     ``garment``, ``independent`` or a loose garment: ``skirt``, ``coat``, ``dress``, ``wide_trousers``; with a
-    loose garment ``fit=painted`` paints its colours on the body instead of dressing it)."""
+    loose garment ``fit=painted`` paints its colours on the body instead of dressing it; ``hair=long``
+    paints hair worn down over the back and shoulders)."""
     fields = {f.name: f.type for f in dataclasses.fields(SyntheticConfig)}
     kwargs = {}
     for key, value in _spec_items(spec):
@@ -103,6 +104,8 @@ def synthetic_cache_key(config: SyntheticConfig) -> str:
     d = dataclasses.asdict(config)
     if d["fit"] == "loose":  # the default fit keeps the keys made before the field existed
         del d["fit"]
+    if d["hair"] == "drawn":  # so does the default hair
+        del d["hair"]
     if d["clothing"] == "independent":
         del d["clothing"]
     elif d["clothing"] in LOOSE_GARMENTS:  # loose garments: their geometry/skinning/colour version too

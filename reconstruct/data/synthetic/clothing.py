@@ -18,6 +18,11 @@ Two clothing models (``CLOTHING_MODELS``):
   independent random colour with their own pattern. Kept bit-for-bit: the same seed paints the same
   atlas as before the garment model existed.
 
+``hair="long"`` (``SyntheticConfig.hair``; garment model only) paints hair worn down on top of the
+cut: the back of the neck and the upper back to ``LONG_HAIR_FALL`` below the neck's joint, and two
+strands over the shoulders in front, in the hair's colour -- what a photo shows of long hair and
+what its back should take (``appearance/long_hair.py``). It draws nothing.
+
 Both models consume the same 28 draws of the scene generator's random stream (so the body's motion,
 drawn afterwards, is the same for a seed in either model); the garment model draws its extra choices
 from a jumped copy of that stream, which leaves the stream where it was.
@@ -174,7 +179,29 @@ def _contrasting(base: np.ndarray, avoid: list[np.ndarray], rng: np.random.Gener
     return best
 
 
-def _paint_garment(g: _Geometry, pal: dict, rng: np.random.Generator) -> tuple[np.ndarray, dict, dict, dict]:
+HAIR_STYLES = ("drawn", "long")
+# metres below the neck's joint that long hair falls on the back, its half-width there, and the
+# strands over the shoulders in front: from the neck's side out to STRAND_OUT, down to STRAND_FALL
+LONG_HAIR_FALL = 0.22
+LONG_HAIR_HALF_WIDTH = 0.12
+STRAND_IN, STRAND_OUT, STRAND_FALL = 0.045, 0.11, 0.16
+
+
+def _long_hair(g: _Geometry, col: np.ndarray, hair: np.ndarray) -> None:
+    """Hair worn down painted into ``col``: the back of the neck and of the upper back, and two
+    strands over the shoulders in front (module docstring)."""
+    p, is_part = g.p, g.is_part
+    x, z = p[:, 0] - g.head[0], p[:, 2]
+    back = g.front < 0.5
+    below = g.neck_z - z
+    neck = is_part("neck")
+    sheet = (is_part("torso") | neck) & back & (np.abs(x) <= LONG_HAIR_HALF_WIDTH) & (below <= LONG_HAIR_FALL)
+    strands = (is_part("torso") | neck) & ~back & (np.abs(x) >= STRAND_IN) & (np.abs(x) <= STRAND_OUT) & (below <= STRAND_FALL)
+    col[sheet | strands | (neck & back)] = hair
+
+
+def _paint_garment(g: _Geometry, pal: dict, rng: np.random.Generator,
+                   hair_style: str = "drawn") -> tuple[np.ndarray, dict, dict, dict]:
     """One base colour / pattern family per garment all round, front-only and back-only details."""
     p, n, front, is_part = g.p, g.n, g.front, g.is_part
     x, z = p[:, 0], p[:, 2]
@@ -273,6 +300,9 @@ def _paint_garment(g: _Geometry, pal: dict, rng: np.random.Generator) -> tuple[n
     col[mouth] = np.array([0.6, 0.25, 0.25])
     # a collar of the shirt's base colour round the back of the neck
     col[is_part("neck") & (z < neck_z - 0.02) & (front < 0.5)] = shirt
+    if hair_style == "long":
+        _long_hair(g, col, hair)
+        desc["hair"]["long"] = True
 
     details = {"emblem": shirt_mask & (s < 1.0) & (front >= 0.5), "face": on_head & face}
     return col, details, {"emblem": emblem[None], "face": skin[None]}, desc
@@ -303,11 +333,15 @@ def _to_atlas(uv, values: np.ndarray, size: int, fill_index) -> np.ndarray:
 
 
 def paint_clothing(body: BodyModel, rng: np.random.Generator, size: int = 512,
-                   clothing: str = "garment") -> PaintedClothing:
+                   clothing: str = "garment", hair: str = "drawn") -> PaintedClothing:
     """Paint ``body``'s atlas with the clothing model ``clothing`` (one of CLOTHING_MODELS),
-    drawing from ``rng`` exactly as the original painter did (28 draws)."""
+    drawing from ``rng`` exactly as the original painter did (28 draws); ``hair``: one of
+    ``HAIR_STYLES`` (``long``: the garment model only)."""
     if clothing not in CLOTHING_MODELS:
         raise ValueError(f"unknown clothing model {clothing!r}; available: {', '.join(CLOTHING_MODELS)}")
+    if hair not in HAIR_STYLES or (hair != "drawn" and clothing != "garment"):
+        raise ValueError(f"hair must be one of {', '.join(HAIR_STYLES)} (long: with clothing=garment), "
+                         f"found hair={hair!r} with clothing={clothing!r}")
     g = _Geometry(body, size)
     pal = _draw_palette(rng)
     if clothing == "independent":
@@ -315,7 +349,7 @@ def paint_clothing(body: BodyModel, rng: np.random.Generator, size: int = 512,
         desc = {"model": "independent", "long_sleeves": pal["long_sleeves"]}
     else:
         extra = np.random.Generator(rng.bit_generator.jumped())  # leaves ``rng`` where it is
-        col, details, colors, desc = _paint_garment(g, pal, extra)
+        col, details, colors, desc = _paint_garment(g, pal, extra, hair)
     col = np.clip(col, 0, 1)
     # the back region of a front-only detail: the backward-facing texels (front weight < 1/2) whose
     # mirror partner shows the detail; a texel whose true colour is (nearly) the detail's own is no

@@ -28,7 +28,7 @@ from ...body.anny_backend import random_phenotype
 from ...body.base import vertex_normals
 from ...camera import Camera, angle_between_views
 from ..scene import BodySpec, EvalView, Frame, Scene
-from .clothing import CLOTHING_MODELS, LEAK_DETAILS, PaintedClothing, paint_clothing
+from .clothing import CLOTHING_MODELS, HAIR_STYLES, LEAK_DETAILS, PaintedClothing, paint_clothing
 from .garment_mesh import LOOSE_GARMENTS
 from .motion import walk_in_place
 
@@ -54,6 +54,9 @@ class SyntheticConfig:
     # a loose garment worn "loose" (its mesh, standing off the body) or "painted" (its colours painted
     # on the body under it, no mesh: the tight reference in the same pattern)
     fit: str = "loose"
+    # the hair: "drawn" (the painter's own cut) or "long" (worn down over the back and shoulders,
+    # painted on the body; clothing.py's HAIR_STYLES)
+    hair: str = "drawn"
 
     def __post_init__(self) -> None:
         if self.clothing not in CLOTHING_MODELS + LOOSE_GARMENTS:
@@ -64,6 +67,9 @@ class SyntheticConfig:
         if self.fit != "loose" and self.clothing not in LOOSE_GARMENTS:
             raise ValueError(f"synthetic scene: fit={self.fit} needs a loose garment "
                              f"(clothing={'|'.join(LOOSE_GARMENTS)}), found clothing={self.clothing}")
+        if self.hair not in HAIR_STYLES or (self.hair != "drawn" and self.clothing != "garment"):
+            raise ValueError(f"synthetic scene: hair must be one of {', '.join(HAIR_STYLES)} (long: with "
+                             f"clothing=garment), found hair={self.hair!r} with clothing={self.clothing}")
         if self.num_frames < 1:
             raise ValueError(f"synthetic scene: num_frames must be >= 1, found {self.num_frames}")
         if self.image_size < 32:
@@ -103,7 +109,7 @@ def build_synthetic_scene(config: SyntheticConfig = SyntheticConfig(), *, progre
     spec = BodySpec.anny(random_phenotype(rng), config.leg_spread_deg)
     body = spec.build()
     loose = config.clothing in LOOSE_GARMENTS
-    painted = paint_clothing(body, rng, config.texture_size, "garment" if loose else config.clothing)
+    painted = paint_clothing(body, rng, config.texture_size, "garment" if loose else config.clothing, config.hair)
     texture = painted.texture
     outfit = painted_garment = None
     if config.garment_mesh:
@@ -181,7 +187,7 @@ def synthetic_scene_name(config: SyntheticConfig) -> str:
     garment model recorded in their checkpoints -- and ``synthetic-seedS-garment`` for garments, so
     that a checkpoint of one is refused on the other."""
     return (f"synthetic-seed{config.seed}" + ("" if config.clothing == "independent" else f"-{config.clothing}")
-            + ("" if config.fit == "loose" else f"-{config.fit}"))
+            + ("" if config.fit == "loose" else f"-{config.fit}") + ("" if config.hair == "drawn" else f"-{config.hair}hair"))
 
 
 def _garment_version() -> int:
@@ -197,7 +203,7 @@ def repaint(config: SyntheticConfig) -> PaintedClothing:
     rng = np.random.default_rng(config.seed)
     spec = BodySpec.anny(random_phenotype(rng), config.leg_spread_deg)
     model = "garment" if config.clothing in LOOSE_GARMENTS else config.clothing
-    return paint_clothing(spec.build(), rng, config.texture_size, model)
+    return paint_clothing(spec.build(), rng, config.texture_size, model, config.hair)
 
 
 def synthetic_config_of(scene: Scene) -> SyntheticConfig:
