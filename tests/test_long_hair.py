@@ -7,8 +7,9 @@ import pytest
 from scipy import ndimage
 
 from reconstruct.appearance.cut_fill import FrameView
-from reconstruct.appearance.long_hair import (JOIN_REACH, face_middle, falls_past_neck, hair_back_colors, hair_rows,
-                                              middle_mean, share_near, smooth_cover)
+from reconstruct.appearance.long_hair import (JOIN_REACH, down_the_middle, face_middle, falls_past_neck,
+                                              hair_back_colors, hair_rows, hung_from_above, middle_mean, share_near,
+                                              smooth_cover)
 
 H, W = 130, 80
 CX = 40  # the face's middle column
@@ -248,3 +249,44 @@ def test_the_face_middle_is_the_front_of_the_head_round_the_nose():
     front = (head[:, 1] < -0.09) & (np.abs(head[:, 2] - 1.59) < 0.02) & (np.abs(head[:, 0]) < 0.03)
     assert middle[:-1][front].all()
     assert face_middle(np.zeros((0, 3))).shape == (0,)
+
+
+def test_a_gaussian_behind_is_read_where_its_twin_in_front_projects():
+    """The back of a body turned from the camera projects beside its front: each candidate is read
+    where its twin (the front's Gaussian at its place) projects."""
+    points = np.array([[CX + 30, 70], [CX, 70]], np.float64) + 0.5  # a candidate beside the span, its twin in it
+    view, (seeds, middle, skin, shirt, neck, idx) = _view(80, points)
+    cand, twin = idx[:1], idx[1:]
+    args = (len(view.uv), cand, seeds, middle, [skin, shirt])
+    out = hair_back_colors(*args, [view], tolerance=TOL, hanging=np.array([True]), neck=neck, twins=twin)
+    assert np.isfinite(out[cand]).all() and np.abs(out[cand] - HAIR).max() < 0.1
+    alone = hair_back_colors(*args, [view], tolerance=TOL, hanging=np.array([True]), neck=neck)
+    assert np.isnan(alone[cand]).all()
+
+
+def test_a_part_is_covered_only_below_a_covered_part():
+    colours = np.full((30, 3), 0.3)
+    head, neck, back = np.arange(0, 10), np.arange(10, 20), np.arange(20, 30)
+    np.testing.assert_allclose(hung_from_above(colours, [head, neck, back]), colours, rtol=1e-6)
+    bare_neck = colours.copy()
+    bare_neck[neck[:6]] = np.nan  # 40 % of the neck covered: the back below it is not
+    out = hung_from_above(bare_neck, [head, neck, back])
+    assert np.isnan(out[back]).all() and np.isfinite(out[head]).all() and np.isfinite(out[neck[6:]]).all()
+    bare_head = colours.copy()
+    bare_head[head] = np.nan
+    assert np.isnan(hung_from_above(bare_head, [head, neck, back])[10:]).all()
+
+
+def test_the_backs_cover_is_kept_where_it_hangs_down_the_middle():
+    """Two pieces of cover on a back (a grid of points 5 mm apart): a sheet across the middle is
+    kept, a patch on one shoulder, apart from it, goes."""
+    xs, zs = np.meshgrid(np.arange(-0.2, 0.2001, 0.005), np.arange(1.2, 1.45, 0.005))
+    pos = np.c_[xs.ravel(), np.full(xs.size, 0.1), zs.ravel()]
+    colours = np.full((len(pos), 3), np.nan)
+    sheet = (np.abs(pos[:, 0]) < 0.06) & (pos[:, 2] > 1.35)
+    patch = (pos[:, 0] > 0.13) & (pos[:, 2] > 1.40)
+    colours[sheet | patch] = 0.2
+    out = down_the_middle(colours, np.arange(len(pos)), pos, middle_x=0.0)
+    assert np.isfinite(out[sheet]).all() and np.isnan(out[patch]).all()
+    off = down_the_middle(colours, np.arange(len(pos)), pos, middle_x=0.3)  # nothing reaches that column
+    assert np.isnan(off).all()

@@ -32,7 +32,9 @@ them. The neck and back are covered only in frames where the hair falls past the
 (``falls_past_neck``): hair cut at the jaw leaves the back of the neck to its hairline. Over
 several frames (a video that never turned) a Gaussian is covered where at least half of the frames
 it projects into cover it, with the median of their colours; on the texel grid the cover's edge is
-smoothed and strips thinner than ``OPEN_TEXELS`` go (``smooth_cover``).
+smoothed and strips thinner than ``OPEN_TEXELS`` go (``smooth_cover``); and a part is covered only
+below a part that is (``hung_from_above``: the head, then the neck, then the back), and the back
+in the pieces that reach down its middle (``down_the_middle``).
 """
 
 from __future__ import annotations
@@ -56,6 +58,9 @@ FACE_MARGIN = 1  # pixels the face's projected hull is grown by
 EDGE_PX = 2  # pixels inside the silhouette's edge whose colours the hair's colour leaves out
 SMOOTH_SWEEPS = 2  # majority sweeps over the cover's edge on the texel grid (``smooth_cover``)
 OPEN_TEXELS = 3  # texels of the opening that takes strips of cover away (``smooth_cover``)
+HANG_SHARE = 0.5  # share of a part's candidates covered for the part below to be (``hung_from_above``)
+MIDDLE_COLUMN = 0.04  # metres either side of the head's middle that the back's cover must reach (``down_the_middle``)
+JOIN_3D = 0.015  # metres within which covered Gaussians are one piece (``down_the_middle``)
 # share of the hair's points a hair-coloured pixel needs within half the tolerance of its colour:
 # the colours the hair shows often, not its rare ones (the coat photo's grey beanie edge, whose
 # colours are the coat's shadows)
@@ -266,9 +271,14 @@ def falls_past_neck(rows: HairRows, neck_uv: np.ndarray) -> bool:
 
 def hair_back_colors(n: int, candidates: np.ndarray, hair: np.ndarray, face: np.ndarray,
                      rivals: Sequence[np.ndarray], views: Iterable[FrameView], *, tolerance: float,
-                     hanging: np.ndarray | None = None, neck: np.ndarray | None = None) -> np.ndarray:
+                     hanging: np.ndarray | None = None, neck: np.ndarray | None = None,
+                     twins: np.ndarray | None = None) -> np.ndarray:
     """(n,3) float32, NaN but for the ``candidates`` (indices: unseen Gaussians behind their part's
-    centre) the hair covers in the images (module docstring), which take its colour there.
+    centre) the hair covers in the images (module docstring), which take its colour there. Each
+    candidate is read where its ``twin`` projects (``twins``: (C,) indices; None: itself): the
+    Gaussian in front of it at its left-right place and height, which the image shows under the
+    strands that frame the hair behind -- the back itself projects beside the front wherever the
+    body is turned from the camera.
     ``hair``: indices of the head's seen hair Gaussians; ``face``: of its face's middle
     (``face_middle``); ``rivals``: groups of indices of seen Gaussians whose colours are not the hair's
     (``hair_rows``); ``views``: the frames, read once. ``hanging``: (C,) bool over the candidates,
@@ -287,15 +297,16 @@ def hair_back_colors(n: int, candidates: np.ndarray, hair: np.ndarray, face: np.
         inside = view.inside()
         rows = hair_rows(view.image, view.mask, view.uv[hair[inside[hair]]], view.uv[face[inside[face]]],
                          [view.uv[r[inside[r]]] for r in rivals], tolerance=tolerance)
-        here = inside[candidates]
+        read = candidates if twins is None else np.asarray(twins, np.int64)
+        here = inside[read]
         frames_in += here
         got = np.full((len(candidates), 3), np.nan)
         if rows is not None:
-            cov = here & rows.covers(view.uv[candidates])
+            cov = here & rows.covers(view.uv[read])
             if hanging is not None and (neck is None or not falls_past_neck(rows, view.uv[neck[inside[neck]]])):
                 cov &= ~np.asarray(hanging, bool)
             covered_votes += cov
-            got[cov] = rows.colour_at(view.uv[candidates[cov]])
+            got[cov] = rows.colour_at(view.uv[read[cov]])
         colours.append(got)
     if not colours:
         return out
@@ -341,3 +352,44 @@ def smooth_cover(colors: np.ndarray, candidates: np.ndarray, neighbours: np.ndar
         core[candidates] |= covered[candidates] & (core[at] & ok).any(1)
     out[candidates[~core[candidates]]] = np.nan
     return out.astype(np.float32)
+
+
+def hung_from_above(colors: np.ndarray, groups: Sequence[np.ndarray], share: float = HANG_SHARE) -> np.ndarray:
+    """``colors`` (n,3) of ``hair_back_colors`` with the cover of each group of candidates (the
+    parts from the head down, in order: ``groups``, index arrays) taken away unless the group above
+    it is covered on at least ``share`` of its candidates: hair hangs from the head down the neck to
+    the back. Where hair tied back covered the tops of the shoulders beside a neck it left bare
+    (the group photo's second woman), the shoulders kept two patches of it."""
+    out = np.array(colors, np.float32, copy=True)
+    held = True
+    for group in groups:
+        group = np.asarray(group, np.int64)
+        if not held:
+            out[group] = np.nan
+        covered = np.isfinite(out[group]).all(1).mean() if len(group) else 0.0
+        held = held and covered >= share
+    return out
+
+
+def down_the_middle(colors: np.ndarray, group: np.ndarray, pos: np.ndarray, middle_x: float,
+                    column: float = MIDDLE_COLUMN, reach: float = JOIN_3D) -> np.ndarray:
+    """``colors`` (n,3) with the cover of the candidates ``group`` kept only in its pieces (joined
+    within ``reach`` metres, canonical positions ``pos``) that reach the column within ``column``
+    of ``middle_x`` (the head's middle): hair hangs down the middle of the back. Where hair tied
+    back ended by the neck, the mirrored tips of its strands covered the tops of both shoulders
+    and not the back between them (the group photo's second woman)."""
+    out = np.array(colors, np.float32, copy=True)
+    group = np.asarray(group, np.int64)
+    got = group[np.isfinite(out[group]).all(1)]
+    if not len(got):
+        return out
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    pairs = cKDTree(pos[got]).query_pairs(reach, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(got), len(got)))
+    _, label = connected_components(graph, directed=False)
+    middle = np.abs(pos[got, 0] - middle_x) <= column
+    keep = np.isin(label, np.unique(label[middle]))
+    out[got[~keep]] = np.nan
+    return out

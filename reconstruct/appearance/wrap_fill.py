@@ -83,7 +83,7 @@ from ..avatar.garment_layer import GARMENT_PART
 from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
 from .cut_fill import apply_cut_colors
 from .hair import face_coloured, hair_and_face, hair_covered, hair_sources, skin_reference
-from .long_hair import face_middle, hair_back_colors, smooth_cover
+from .long_hair import down_the_middle, face_middle, hair_back_colors, hung_from_above, smooth_cover
 from .periodic_fill import continue_layer
 
 
@@ -670,14 +670,19 @@ def _hair_down_the_back(pos: np.ndarray, parts: np.ndarray, seen: np.ndarray, do
     Gaussians in the face's colours), the clothes of the torso's lower half and of the garment
     layer beside it, and the ``HAIR_FREE_PARTS`` (the forearms and hands), all ``seen``."""
     none = np.full((len(pos), 3), np.nan, np.float32)
-    behind = []
+    behind, twins = [], []
     for name in cfg.hair_back_parts:
         if name not in PART_INDEX:
             continue
         members = np.flatnonzero(parts == PART_INDEX[name])
-        if len(members):
-            todo = members[~done[members]]
-            behind.append(todo[pos[todo, 1] > pos[members, 1].mean()])
+        if not len(members):
+            continue
+        todo = members[~done[members]]
+        back = todo[pos[todo, 1] > pos[members, 1].mean()]
+        front = members[pos[members, 1] <= pos[members, 1].mean()]
+        if len(back) and len(front):  # each one's twin: the front's Gaussian at its left-right place and height
+            behind.append(back)
+            twins.append(front[cKDTree(pos[front][:, [0, 2]]).query(pos[back][:, [0, 2]])[1]])
     candidates = np.concatenate(behind) if behind else np.zeros(0, np.int64)
     torso = parts == PART_INDEX.get("torso", -1)
     if not len(candidates) or not torso.any():
@@ -693,8 +698,14 @@ def _hair_down_the_back(pos: np.ndarray, parts: np.ndarray, seen: np.ndarray, do
     rivals = [np.intersect1d(face, face_coloured_idx), np.flatnonzero(seen & (waist | free))]
     hair = hair_back_colors(len(pos), candidates, hair_idx, face, rivals, views, tolerance=cfg.palette_tolerance,
                             hanging=parts[candidates] != PART_INDEX["head"],
-                            neck=np.flatnonzero(parts == PART_INDEX.get("neck", -1)))
-    return hair if neighbours is None else smooth_cover(hair, candidates, neighbours)
+                            neck=np.flatnonzero(parts == PART_INDEX.get("neck", -1)), twins=np.concatenate(twins))
+    if neighbours is not None:
+        hair = smooth_cover(hair, candidates, neighbours)
+    middle_x = float(np.median(pos[face, 0])) if len(face) else float(pos[head, 0].mean())
+    for group in behind:
+        if parts[group[0]] == PART_INDEX.get("torso"):
+            hair = down_the_middle(hair, group, pos, middle_x)
+    return hung_from_above(hair, behind)
 
 
 @dataclass
