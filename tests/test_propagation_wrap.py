@@ -1500,12 +1500,9 @@ def _photo_of(pos, colours, front, strands_to=None, scale=100.0, size=(110, 70),
     return FrameView(uv, np.ones(len(pos), bool), image, mask.astype(np.float32))
 
 
-def test_long_hair_in_a_photo_covers_the_back_of_the_neck_and_shoulders():
-    """A head seen from the front only, a neck and a torso in a blue shirt; the photo shows hair
-    falling either side of the neck onto the shoulders, to 1.35 m. From behind, the hair covers the
-    back of the neck and the upper back between its strands, to about that height, in its colour
-    (``hair_back_parts``, ``long_hair.py``); hair cut at the jaw leaves them the shirt's and the
-    neck's, as does a fill without the images."""
+def _head_neck_torso():
+    """A head (hair round a face, a nose), a neck and a torso in a blue shirt, built as cylinders:
+    positions, parts, true colours, and the seen flags of a photo from the front."""
     head, th = cylinder(radius=0.09, height=0.22, n_theta=72, n_z=44, z0=1.55)
     deg = np.abs(np.degrees(th)) - 1e-9
     head_col = np.where(((head[:, 2] < 1.70) & (deg < 50))[:, None], SKIN, HAIR)
@@ -1518,6 +1515,16 @@ def test_long_hair_in_a_photo_covers_the_back_of_the_neck_and_shoulders():
     truth = np.r_[head_col, [SKIN], np.tile(SKIN, (len(neck), 1)), np.tile(BLUE, (len(torso), 1))]
     front = pos[:, 1] < np.array([pos[parts == p, 1].mean() for p in parts]) + 1e-9
     seen = np.r_[deg <= 80, True, front[len(head) + 1:]]
+    return pos, parts, truth, seen
+
+
+def test_long_hair_in_a_photo_covers_the_back_of_the_neck_and_shoulders():
+    """A head seen from the front only, a neck and a torso in a blue shirt; the photo shows hair
+    falling either side of the neck onto the shoulders, to 1.35 m. From behind, the hair covers the
+    back of the neck and the upper back between its strands, to about that height, in its colour
+    (``hair_back_parts``, ``long_hair.py``); hair cut at the jaw leaves them the shirt's and the
+    neck's, as does a fill without the images."""
+    pos, parts, truth, seen = _head_neck_torso()
     col = np.where(seen[:, None], truth, 0.5)
     long_hair = _photo_of(pos, truth, seen, strands_to=1.35)
     hair = long_hair_colors(pos, parts, seen, col, [long_hair]).numpy()
@@ -1542,3 +1549,35 @@ def test_long_hair_in_a_photo_covers_the_back_of_the_neck_and_shoulders():
         plain = wrap_fill_colors(pos, parts, seen, col, None, hair_colors=hair).numpy()
         assert np.abs(plain[under] - BLUE).max(1).mean() < 0.05
         assert np.abs(plain[neck_back] - HAIR).max(1).mean() > 0.2
+
+
+def test_long_hair_over_a_garment_layer_covers_the_layers_back():
+    """The same photo with a coat's layer (``GARMENT_PART``, 2 cm off the torso) over the back from
+    1.20 m up to 1.42 m, hiding the torso under it: the hair covers the layer's back, not the hidden
+    torso; the layer's back below the hair keeps the coat's colour."""
+    pos, parts, truth, seen = _head_neck_torso()
+    th, z = np.meshgrid(np.linspace(-np.pi, np.pi, 96, endpoint=False), np.linspace(1.20, 1.42, 44))
+    layer = np.c_[0.17 * np.sin(th.ravel()), -0.17 * np.cos(th.ravel()), z.ravel()]
+    torso = parts == PART_INDEX["torso"]
+    hidden = torso & (pos[:, 2] >= 1.20) & (pos[:, 2] <= 1.42)
+    under = np.full(len(pos) + len(layer), -1)
+    under[np.flatnonzero(hidden)] = len(pos) + cKDTree(layer).query(pos[hidden])[1]
+    pos = np.r_[pos, layer]
+    parts = np.r_[parts, np.full(len(layer), GARMENT_PART)]
+    truth = np.r_[truth, np.tile(GREEN, (len(layer), 1))]
+    seen = np.r_[seen & ~hidden, layer[:, 1] < 0]
+    hidden = np.r_[hidden, np.zeros(len(layer), bool)]
+    col = np.where(seen[:, None], truth, 0.5)
+    photo = _photo_of(pos, truth, seen, strands_to=1.30)
+    hair = long_hair_colors(pos, parts, seen, col, [photo], under_layer=under).numpy()
+    out = wrap_fill_colors(pos, parts, seen, col, None, under_layer=under, hair_colors=hair).numpy()
+    layer_back = (parts == GARMENT_PART) & ~seen
+    covered = layer_back & (pos[:, 2] > 1.33) & (np.abs(pos[:, 0]) < 0.08)
+    assert covered.sum() > 30
+    assert np.abs(out[covered] - HAIR).max(1).mean() < 0.05
+    assert np.isnan(hair[hidden]).all()  # the torso under the cloth is no candidate
+    assert np.abs(out[layer_back & (pos[:, 2] < 1.26)] - GREEN).max(1).max() < 0.05
+    # without the layer among the parts the hair covers, its back is the coat's
+    cfg = WrapFillConfig(hair_back_parts=("head", "neck", "torso"))
+    bare = long_hair_colors(pos, parts, seen, col, [photo], config=cfg, under_layer=under).numpy()
+    assert np.isnan(bare[covered]).all()

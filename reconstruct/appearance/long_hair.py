@@ -354,20 +354,22 @@ def smooth_cover(colors: np.ndarray, candidates: np.ndarray, neighbours: np.ndar
     return out.astype(np.float32)
 
 
-def hung_from_above(colors: np.ndarray, groups: Sequence[np.ndarray], share: float = HANG_SHARE) -> np.ndarray:
+def hung_from_above(colors: np.ndarray, groups: Sequence[np.ndarray], shares: Sequence[float] | None = None) -> np.ndarray:
     """``colors`` (n,3) of ``hair_back_colors`` with the cover of each group of candidates (the
     parts from the head down, in order: ``groups``, index arrays) taken away unless the group above
-    it is covered on at least ``share`` of its candidates: hair hangs from the head down the neck to
-    the back. Where hair tied back covered the tops of the shoulders beside a neck it left bare
-    (the group photo's second woman), the shoulders kept two patches of it."""
+    it is covered on more than ``shares[i]`` of its candidates (``HANG_SHARE`` each by default): hair
+    hangs from the head down the neck to the back. Where hair tied back covered the tops of the
+    shoulders beside a neck it left bare (the group photo's second woman), the shoulders kept two
+    patches of it."""
     out = np.array(colors, np.float32, copy=True)
+    shares = [HANG_SHARE] * len(groups) if shares is None else list(shares)
     held = True
-    for group in groups:
+    for group, share in zip(groups, shares):
         group = np.asarray(group, np.int64)
         if not held:
             out[group] = np.nan
         covered = np.isfinite(out[group]).all(1).mean() if len(group) else 0.0
-        held = held and covered >= share
+        held = held and covered > share
     return out
 
 

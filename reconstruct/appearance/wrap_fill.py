@@ -79,11 +79,11 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ..avatar.garment_layer import GARMENT_PART
+from ..avatar.garment_layer import GARMENT_PART, GARMENT_PART_NAME
 from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
 from .cut_fill import apply_cut_colors
 from .hair import face_coloured, hair_and_face, hair_covered, hair_sources, skin_reference
-from .long_hair import down_the_middle, face_middle, hair_back_colors, hung_from_above, smooth_cover
+from .long_hair import HANG_SHARE, down_the_middle, face_middle, hair_back_colors, hung_from_above, smooth_cover
 from .periodic_fill import continue_layer
 
 
@@ -305,7 +305,7 @@ class WrapFillConfig:
     # only, that project into the span the hair covers on their image row take the hair's colour on
     # that row. The back of a long-haired photo's head ended at the skull, the neck and upper back
     # below it the dress's colour, and the back of blonde hair was its shadowed strands' brown
-    hair_back_parts: tuple[str, ...] = ("head", "neck", "torso")
+    hair_back_parts: tuple[str, ...] = ("head", "neck", "torso", GARMENT_PART_NAME)
 
 
 def grazing_rule_for(stage1_settings) -> bool:
@@ -670,24 +670,29 @@ def _hair_down_the_back(pos: np.ndarray, parts: np.ndarray, seen: np.ndarray, do
     Gaussians in the face's colours), the clothes of the torso's lower half and of the garment
     layer beside it, and the ``HAIR_FREE_PARTS`` (the forearms and hands), all ``seen``."""
     none = np.full((len(pos), 3), np.nan, np.float32)
+    torso = parts == PART_INDEX.get("torso", -1)
+    if not torso.any():
+        return none
+    middle = 0.5 * (pos[torso, 2].min() + pos[torso, 2].max())
     behind, twins = [], []
     for name in cfg.hair_back_parts:
-        if name not in PART_INDEX:
-            continue
-        members = np.flatnonzero(parts == PART_INDEX[name])
-        if not len(members):
+        if name == GARMENT_PART_NAME:  # a garment layer over the back: its rows above the torso's middle,
+            members = np.flatnonzero((parts == GARMENT_PART) & (pos[:, 2] >= middle))  # by the torso's centre
+            centre_y = pos[torso, 1].mean()
+        elif name in PART_INDEX:
+            members = np.flatnonzero(parts == PART_INDEX[name])
+            centre_y = pos[members, 1].mean() if len(members) else 0.0
+        else:
             continue
         todo = members[~done[members]]
-        back = todo[pos[todo, 1] > pos[members, 1].mean()]
-        front = members[pos[members, 1] <= pos[members, 1].mean()]
+        back = todo[pos[todo, 1] > centre_y]
+        front = members[pos[members, 1] <= centre_y]
         if len(back) and len(front):  # each one's twin: the front's Gaussian at its left-right place and height
             behind.append(back)
             twins.append(front[cKDTree(pos[front][:, [0, 2]]).query(pos[back][:, [0, 2]])[1]])
     candidates = np.concatenate(behind) if behind else np.zeros(0, np.int64)
-    torso = parts == PART_INDEX.get("torso", -1)
-    if not len(candidates) or not torso.any():
+    if not len(candidates):
         return none
-    middle = 0.5 * (pos[torso, 2].min() + pos[torso, 2].max())
     free = np.isin(parts, [PART_INDEX[n] for n in HAIR_FREE_PARTS if n in PART_INDEX])
     # the torso's and a garment layer's lower half: down to the torso's bottom (trousers and shoes
     # are no rivals: black trousers hid a photo's black hair)
@@ -703,9 +708,11 @@ def _hair_down_the_back(pos: np.ndarray, parts: np.ndarray, seen: np.ndarray, do
         hair = smooth_cover(hair, candidates, neighbours)
     middle_x = float(np.median(pos[face, 0])) if len(face) else float(pos[head, 0].mean())
     for group in behind:
-        if parts[group[0]] == PART_INDEX.get("torso"):
+        if parts[group[0]] in (PART_INDEX.get("torso"), GARMENT_PART):
             hair = down_the_middle(hair, group, pos, middle_x)
-    return hung_from_above(hair, behind)
+    # a part below the head is covered only below a covered one; a layer over the back only where the
+    # back above it is covered at all (the back's candidates stop at the layer's top)
+    return hung_from_above(hair, behind, [0.0 if parts[g[0]] == PART_INDEX.get("torso") else HANG_SHARE for g in behind])
 
 
 @dataclass
