@@ -300,10 +300,10 @@ class WrapFillConfig:
     # a light upper back (0.89 0.73 0.63) under a brown coat (0.70 0.50 0.37)
     coat_back: bool = True
     # hair worn down, read in the images (``long_hair_colors``, given as ``wrap_fill_colors(hair_colors=...)``;
-    # ``long_hair.py``):
-    # the unseen Gaussians of these parts behind their part's centre, on a head seen from the front
-    # only, that project into the span the hair covers on their image row take the hair's colour on
-    # that row. The back of a long-haired photo's head ended at the skull, the neck and upper back
+    # ``long_hair.py``): the unseen Gaussians of these parts behind their part's centre, on a head
+    # seen from the front only, whose twins in front project into the span the hair covers in the
+    # images take its colour there (``garment``: a layer over the back, its rows above the torso's
+    # middle). The back of a long-haired photo's head ended at the skull, the neck and upper back
     # below it the dress's colour, and the back of blonde hair was its shadowed strands' brown
     hair_back_parts: tuple[str, ...] = ("head", "neck", "torso", GARMENT_PART_NAME)
 
