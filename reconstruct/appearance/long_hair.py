@@ -25,7 +25,8 @@ inside), less the face's middle (``face_middle``: by the body's geometry, not co
 span its strands mark there -- symmetric about the face's middle column and as wide as the farther
 strand, smoothed over the rows: hair falling further over one shoulder than the other in front
 still hangs from the whole back of the head. Each unseen Gaussian of the parts behind its part's
-centre that projects into that span takes the hair's colour on its row: the mean of the middle
+centre whose twin (the front's Gaussian at its left-right place and height) projects into that
+span takes the hair's colour on that row: the mean of the middle
 half by brightness of the hair's pixels (inside the silhouette by ``EDGE_PX``) within
 ``COLOUR_REACH`` of the hair's height, lit and shadowed strands mixed as a view from behind mixes
 them. The neck and back are covered only in frames where the hair falls past the neck
