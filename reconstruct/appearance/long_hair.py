@@ -187,26 +187,12 @@ def middle_mean(colours: np.ndarray) -> np.ndarray:
     return colours[order[lo:hi] if hi > lo else order].mean(0)
 
 
-def hair_rows(image: np.ndarray, mask: np.ndarray, hair_uv: np.ndarray, face_uv: np.ndarray,
-              rival_uvs: Sequence[np.ndarray], *, tolerance: float) -> HairRows | None:
-    """The hair of one frame (module docstring): ``image`` (H,W,3) in [0,1], person ``mask`` (H,W),
-    the projections of the head's seen hair Gaussians ``hair_uv`` (S,2), of its face's middle
-    ``face_uv`` (F,2) and of groups of seen Gaussians whose colours are not the hair's,
-    ``rival_uvs`` (the face's skin; the clothes and skin where hair does not fall), in pixels.
-    Hair-coloured pixels and the pieces kept: the module docstring. None when fewer than
-    ``MIN_SEEDS`` of the hair's points fall on the person or no piece of hair-coloured pixels
-    holds enough of them."""
-    image = np.asarray(image, np.float64)
-    person = np.asarray(mask) > 0.5
-    shape = person.shape
-    x, y = _pixels(hair_uv, shape)
-    on = person[y, x]
-    x, y = x[on], y[on]
-    if len(x) < MIN_SEEDS:
-        return None
-    seeds = image[y, x]
-    face = face_hull(face_uv, shape)
-    ys, xs = np.nonzero(person & ~face)
+def hair_coloured(image: np.ndarray, person: np.ndarray, seeds: np.ndarray, allowed: np.ndarray,
+                  rival_uvs: Sequence[np.ndarray], tolerance: float) -> np.ndarray:
+    """(H,W) bool: the ``allowed`` pixels in the hair's colours (module docstring): within
+    ``tolerance`` of a colour of the ``seeds`` (S,3), shared by ``HAIR_SHARE`` of them and by
+    ``RIVAL_RATIO`` times more of them than of any rival group's points (``rival_uvs``)."""
+    ys, xs = np.nonzero(allowed)
     colours = image[ys, xs]
     near = cKDTree(np.unique(seeds, axis=0)).query(colours, p=np.inf)[0] <= tolerance
     hair_share = share_near(seeds, colours[near], 0.5 * tolerance)
@@ -215,26 +201,39 @@ def hair_rows(image: np.ndarray, mask: np.ndarray, hair_uv: np.ndarray, face_uv:
         rival_share = np.maximum(rival_share, share_near(_colours_under(image, person, uv), colours[near],
                                                          0.5 * tolerance))
     near[near] = (hair_share > RIVAL_RATIO * rival_share) & (hair_share >= HAIR_SHARE)
-    like = np.zeros(shape, bool)
+    like = np.zeros(allowed.shape, bool)
     like[ys[near], xs[near]] = True
-    allowed = person & ~face
+    return like
+
+
+def hair_region(like: np.ndarray, allowed: np.ndarray, seed_px: tuple[np.ndarray, np.ndarray],
+                face_height: float) -> np.ndarray | None:
+    """(H,W) bool: the hair among the hair-coloured pixels ``like`` (module docstring): joined
+    across one-pixel gaps, the pieces holding ``SEED_SHARE`` of the seeds (``seed_px``: their
+    (x, y) pixels) and those within ``JOIN_REACH`` of the ``face_height`` (pixels) of them, holes
+    filled, within ``allowed``; None when no piece holds enough seeds."""
     joined = ndimage.binary_closing(like, structure=np.ones((3, 3), bool)) & allowed | like
     labels, n = ndimage.label(joined, structure=np.ones((3, 3), bool))
     if n == 0:
         return None
+    x, y = seed_px
     held = np.bincount(labels[y, x], minlength=n + 1)
     held[0] = 0
     keep = held >= max(2, SEED_SHARE * len(x))
     if not keep.any():
         return None
-    if len(face_uv):
-        # pieces of hair within reach of those: hair below a hat, past an ear or a glasses' arm
-        reach = int(round(JOIN_REACH * np.ptp(face_uv[:, 1])))
-        if reach > 0:
-            near_kept = ndimage.binary_dilation(keep[labels], iterations=reach)
-            keep[np.unique(labels[near_kept & (labels > 0)])] = True
-    region = ndimage.binary_fill_holes(keep[labels]) & allowed
-    h = shape[0]
+    # pieces of hair within reach of those: hair below a hat, past an ear or a glasses' arm
+    reach = int(round(JOIN_REACH * face_height))
+    if reach > 0:
+        near_kept = ndimage.binary_dilation(keep[labels], iterations=reach)
+        keep[np.unique(labels[near_kept & (labels > 0)])] = True
+    return ndimage.binary_fill_holes(keep[labels]) & allowed
+
+
+def rows_of(region: np.ndarray, image: np.ndarray, person: np.ndarray, centre: float) -> HairRows:
+    """The span the hair ``region`` covers behind on each row, symmetric about the ``centre``
+    column, and its colour there (module docstring)."""
+    h = region.shape[0]
     left = np.full(h, np.nan)
     right = np.full(h, np.nan)
     colour = np.full((h, 3), np.nan)
@@ -247,11 +246,9 @@ def hair_rows(image: np.ndarray, mask: np.ndarray, hair_uv: np.ndarray, face_uv:
         band = slice(max(r - reach, 0), r + reach + 1)
         pixels = image[band][inner[band]]
         colour[r] = middle_mean(pixels if len(pixels) else image[band][region[band]])
-    # the span behind: symmetric about the face's middle column, as wide on each row as the hair
-    # reaches out on either side there (strands over one shoulder longer than over the other still
-    # hang from the whole back of the head), its half-width smoothed over the colour's rows (a
-    # strand's ragged tip is not the hair's edge behind)
-    centre = float(np.median((face_uv if len(face_uv) else hair_uv)[:, 0]))
+    # as wide on each row as the hair reaches out on either side there (strands over one shoulder
+    # longer than over the other still hang from the whole back of the head), the half-width
+    # smoothed over the colour's rows (a strand's ragged tip is not the hair's edge behind)
     half = np.zeros(h)
     for r in rows:
         cols = np.flatnonzero(region[r])
@@ -260,6 +257,29 @@ def hair_rows(image: np.ndarray, mask: np.ndarray, hair_uv: np.ndarray, face_uv:
     left[rows] = centre - half[rows]
     right[rows] = centre + half[rows]
     return HairRows(left, right, colour, region)
+
+
+def hair_rows(image: np.ndarray, mask: np.ndarray, hair_uv: np.ndarray, face_uv: np.ndarray,
+              rival_uvs: Sequence[np.ndarray], *, tolerance: float) -> HairRows | None:
+    """The hair of one frame (module docstring): ``image`` (H,W,3) in [0,1], person ``mask`` (H,W),
+    the projections of the head's seen hair Gaussians ``hair_uv`` (S,2), of its face's middle
+    ``face_uv`` (F,2) and of groups of seen Gaussians whose colours are not the hair's,
+    ``rival_uvs`` (the face's skin; the clothes and skin where hair does not fall), in pixels.
+    None when fewer than ``MIN_SEEDS`` of the hair's points fall on the person or no piece of
+    hair-coloured pixels holds enough of them."""
+    image = np.asarray(image, np.float64)
+    person = np.asarray(mask) > 0.5
+    x, y = _pixels(hair_uv, person.shape)
+    on = person[y, x]
+    x, y = x[on], y[on]
+    if len(x) < MIN_SEEDS:
+        return None
+    allowed = person & ~face_hull(face_uv, person.shape)
+    like = hair_coloured(image, person, image[y, x], allowed, rival_uvs, tolerance)
+    region = hair_region(like, allowed, (x, y), float(np.ptp(face_uv[:, 1])) if len(face_uv) else 0.0)
+    if region is None:
+        return None
+    return rows_of(region, image, person, float(np.median((face_uv if len(face_uv) else hair_uv)[:, 0])))
 
 
 def falls_past_neck(rows: HairRows, neck_uv: np.ndarray) -> bool:
