@@ -15,8 +15,8 @@ from ..appearance.wrap_fill import grazing_rule_for
 from ..avatar.layer_depth import match_layer_depth
 from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
-from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, layer_reached, layer_through,
-                          layer_training_views, occluded_colors_of, hair_views_of)
+from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, hair_views_of, layer_reached,
+                          layer_through, layer_training_views, occluded_colors_of)
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
 # which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its

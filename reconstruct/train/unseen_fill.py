@@ -126,8 +126,7 @@ def _frame_views(state: AvatarState, data: TrainingData, frames=None):
     when it is read (the frame's whole image, not the crop training works on)."""
     for i in data.frames if frames is None else frames:
         f = data.scene.frames[i]
-        with torch.no_grad():
-            uv, z = f.camera.project(state.posed(i).means.detach().cpu().double().numpy())
+        uv, z = f.camera.project(state.posed(i).means.detach().cpu().double().numpy())
         yield FrameView(uv, z > 0, f.image, f.mask)
 
 

@@ -187,6 +187,14 @@ LONG_HAIR_HALF_WIDTH = 0.12
 STRAND_IN, STRAND_OUT, STRAND_FALL = 0.045, 0.11, 0.16
 
 
+def check_hair(hair: str, clothing: str, where: str = "") -> None:
+    """ValueError (prefixed ``where``) unless ``hair`` is one of ``HAIR_STYLES`` and, when it is not
+    the drawn cut, the clothing is the garment model's."""
+    if hair not in HAIR_STYLES or (hair != "drawn" and clothing != "garment"):
+        raise ValueError(f"{where}hair must be one of {', '.join(HAIR_STYLES)} (long: with clothing=garment), "
+                         f"found hair={hair!r} with clothing={clothing!r}")
+
+
 def _long_hair(g: _Geometry, col: np.ndarray, hair: np.ndarray) -> None:
     """Hair worn down painted into ``col``: the back of the neck and of the upper back, and two
     strands over the shoulders in front (module docstring)."""
@@ -197,7 +205,7 @@ def _long_hair(g: _Geometry, col: np.ndarray, hair: np.ndarray) -> None:
     neck = is_part("neck")
     sheet = (is_part("torso") | neck) & back & (np.abs(x) <= LONG_HAIR_HALF_WIDTH) & (below <= LONG_HAIR_FALL)
     strands = (is_part("torso") | neck) & ~back & (np.abs(x) >= STRAND_IN) & (np.abs(x) <= STRAND_OUT) & (below <= STRAND_FALL)
-    col[sheet | strands | (neck & back)] = hair
+    col[sheet | strands] = hair  # the sheet holds the whole back of the neck (it lies within its fall and width)
 
 
 def _paint_garment(g: _Geometry, pal: dict, rng: np.random.Generator,
@@ -339,9 +347,7 @@ def paint_clothing(body: BodyModel, rng: np.random.Generator, size: int = 512,
     ``HAIR_STYLES`` (``long``: the garment model only)."""
     if clothing not in CLOTHING_MODELS:
         raise ValueError(f"unknown clothing model {clothing!r}; available: {', '.join(CLOTHING_MODELS)}")
-    if hair not in HAIR_STYLES or (hair != "drawn" and clothing != "garment"):
-        raise ValueError(f"hair must be one of {', '.join(HAIR_STYLES)} (long: with clothing=garment), "
-                         f"found hair={hair!r} with clothing={clothing!r}")
+    check_hair(hair, clothing)
     g = _Geometry(body, size)
     pal = _draw_palette(rng)
     if clothing == "independent":

@@ -28,7 +28,7 @@ from ...body.anny_backend import random_phenotype
 from ...body.base import vertex_normals
 from ...camera import Camera, angle_between_views
 from ..scene import BodySpec, EvalView, Frame, Scene
-from .clothing import CLOTHING_MODELS, HAIR_STYLES, LEAK_DETAILS, PaintedClothing, paint_clothing
+from .clothing import CLOTHING_MODELS, LEAK_DETAILS, PaintedClothing, check_hair, paint_clothing
 from .garment_mesh import LOOSE_GARMENTS
 from .motion import walk_in_place
 
@@ -67,9 +67,7 @@ class SyntheticConfig:
         if self.fit != "loose" and self.clothing not in LOOSE_GARMENTS:
             raise ValueError(f"synthetic scene: fit={self.fit} needs a loose garment "
                              f"(clothing={'|'.join(LOOSE_GARMENTS)}), found clothing={self.clothing}")
-        if self.hair not in HAIR_STYLES or (self.hair != "drawn" and self.clothing != "garment"):
-            raise ValueError(f"synthetic scene: hair must be one of {', '.join(HAIR_STYLES)} (long: with "
-                             f"clothing=garment), found hair={self.hair!r} with clothing={self.clothing}")
+        check_hair(self.hair, self.clothing, "synthetic scene: ")
         if self.num_frames < 1:
             raise ValueError(f"synthetic scene: num_frames must be >= 1, found {self.num_frames}")
         if self.image_size < 32:
