@@ -727,6 +727,87 @@ def test_the_model_finds_layer_gaussians_painted_like_the_arm_in_front_of_them(l
     assert not flags[N:][~painted].any()
 
 
+def test_the_model_finds_layer_gaussians_painted_like_the_arm_behind_it(layered):
+    """``model_layer_behind_limbs`` on the model's own Gaussians: the arm moved 15 cm in front of
+    the layer's front in frame 0 (a hand on a skirt); the seen layer Gaussians within reach of it
+    in the image, painted in the sleeve's colour over grey cloth, lie behind it and are flagged;
+    the same with the arm 15 cm behind the layer (inside the skirt) flags nothing, nor does any
+    body Gaussian."""
+    from reconstruct.avatar.layer_through import ARM_PARTS, BehindConfig, model_layer_behind_limbs
+    from reconstruct.body.parts import PART_INDEX
+
+    t = layered
+    m = t.model
+    N, M = m.num_body, m.num_layer
+    parts = m.parts()
+    sleeve, grey = np.array([0.70, 0.74, 0.83]), np.array([0.30, 0.30, 0.32])
+    arm = np.isin(parts[:N], [PART_INDEX[p] for p in ARM_PARTS])
+    colours = np.tile(grey, (N + M, 1))
+    colours[:N][arm] = sleeve
+    front = m.base_positions[N:, 1].numpy() < m.base_positions[N:, 1].numpy().mean()
+    i = t.data.frames[0]
+    cam = t.data.targets[i].camera
+    with torch.no_grad():
+        means = t.state.posed(i).means.double().numpy().copy()
+    rows = m.layer_rc[:, 0].numpy()
+    target = means[N:][front & (rows < rows.max() // 3)].mean(0)
+    towards = (cam.center - target) / np.linalg.norm(cam.center - target)
+    seen = np.ones(N + M, bool)
+    seen[N:] = front
+    config = BehindConfig(k=3, reach=0.04)
+
+    def flags_with_arm_at(offset):
+        moved = means.copy()
+        centre = means[:N][arm].mean(0)  # the arm shrunk to a hand's size about its middle, moved there
+        moved[:N][arm] = target + offset * towards + 0.25 * (means[:N][arm] - centre)
+        uv, depth = cam.project(moved)
+        d = np.min(np.linalg.norm(uv[N:][:, None] - uv[:N][arm][None], axis=2), 1) * depth[N:] / cam.fx
+        painted = front & (d < 0.035)
+        paint = colours.copy()
+        paint[N:][painted] = sleeve
+        return model_layer_behind_limbs(m, torch.as_tensor(seen), torch.as_tensor(paint), [(cam, moved)], config), painted
+
+    flags, painted = flags_with_arm_at(0.15)
+    assert painted.sum() >= 3, painted.sum()
+    assert flags.shape == (N + M,) and not flags[:N].any()
+    assert flags[N:][painted].mean() > 0.9
+    assert not flags[N:][~painted].any()
+    flags, painted = flags_with_arm_at(-0.15)
+    assert painted.sum() >= 3 and not flags.any()
+
+
+def test_finish_unsees_the_layer_behind_a_limb_before_the_fill(layered, monkeypatch):
+    """Stage I's finish (``layer_behind_limbs``) hands the fill the layer Gaussians the rule flags as
+    unseen, says how many in its note, and with the setting off leaves them seen."""
+    from reconstruct.train import plan as plan_module
+
+    t = layered
+    for _ in range(2):
+        t.step()
+    N = t.model.num_body
+    flagged = torch.zeros(t.model.num_gaussians, dtype=torch.bool)
+    seen_layer = torch.nonzero(t.state.seen[N:]).squeeze(1)
+    assert len(seen_layer) >= 4
+    flagged[N + seen_layer[:4]] = True
+    monkeypatch.setattr(plan_module, "layer_behind_limbs", lambda state, data: flagged.clone())
+    handed = []
+    real = plan_module.fill_unseen_colors
+    monkeypatch.setattr(plan_module, "fill_unseen_colors",
+                        lambda state, **kw: handed.append(state.seen.clone()) or real(state, **kw))
+    import dataclasses
+
+    before = t.state.seen.clone()
+    t.plan.settings = dataclasses.replace(t.plan.settings, layer_behind_limbs=False)
+    t.plan.finish(t)
+    off_seen = handed[-1][flagged].clone()
+    t.state.seen.copy_(before)
+    t.plan.settings = dataclasses.replace(t.plan.settings, layer_behind_limbs=True)
+    note = t.plan.finish(t)
+    assert not bool(handed[-1][flagged].any())
+    assert "4 garment-layer Gaussians behind an arm or a hand" in note
+    assert bool(off_seen.any())
+
+
 def test_layer_faced_training_is_the_front_of_the_tube_for_a_front_camera(layered):
     """Against an independent reference: the cosine between each posed layer normal and the
     direction to the camera, in float64, over every training frame."""

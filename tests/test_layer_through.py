@@ -240,3 +240,60 @@ def test_no_limb_marks_when_the_cloth_is_the_sleeves_colour_or_too_many():
     assert not _limbs(cam, pos, rc, seen, col, arm, parts, arm_col, config=LimbConfig(max_share=0.5 * share)).any()
     # and an arm out of reach (far to the side) marks nothing
     assert not _limbs(cam, pos, rc, seen, col, arm + [0.5, 0, 0], parts, arm_col).any()
+
+
+# ---- arms and hands in front of the layer, the layer behind them (``layer_behind_limbs``) ----
+
+
+def _behind(cam, pos, rc, seen, col, arm, parts, arm_col, **kw):
+    from reconstruct.avatar.layer_through import BehindConfig, layer_behind_limbs
+
+    return layer_behind_limbs([(cam, arm, pos)], parts, arm_col, np.ones(len(arm), bool), col, seen, rc,
+                              BehindConfig(**kw))
+
+
+def test_layer_gaussians_behind_an_arm_in_its_colour_are_found_and_nothing_else():
+    """The arm hangs 18 cm in front of the tube's edge: the layer Gaussians painted like it are
+    behind it, and found; the cloth-coloured ones within reach of it, and the rest, are not."""
+    rng = np.random.default_rng(3)
+    cam, pos, rc, seen, col, arm, parts, arm_col, painted = _limb_scene(rng)
+    uv, depth = cam.project(pos)
+    uv_arm, depth_arm = cam.project(arm)
+    d = np.linalg.norm(uv[:, None] - uv_arm[None], axis=2)
+    nearest = d.argmin(1)
+    reach = seen & (d.min(1) * depth / cam.fx <= 0.03)
+    assert (depth - depth_arm[nearest])[painted].min() > 0.1  # behind it
+    assert (reach & ~painted).sum() >= 8  # cloth within reach that must stay
+    out = _behind(cam, pos, rc, seen, col, arm, parts, arm_col)
+    assert out[painted].mean() > 0.9
+    assert not out[~painted].any()
+
+
+def test_the_layer_in_front_of_an_arm_or_out_of_reach_is_not_behind_it():
+    rng = np.random.default_rng(4)
+    cam, pos, rc, seen, col, arm, parts, arm_col, painted = _limb_scene(rng)
+    assert painted.sum() >= 8
+    # the same arm behind the tube's front (inside the skirt, the layer nearer the camera)
+    inside = arm + [0.0, 0.45, 0.0]
+    assert not _behind(cam, pos, rc, seen, col, inside, parts, arm_col).any()
+    # within the depth gap: not behind either
+    uv, depth = cam.project(pos)
+    gap = float((depth[painted] - cam.project(arm)[1].mean()).max()) + 0.05
+    assert not _behind(cam, pos, rc, seen, col, arm, parts, arm_col, depth_gap=gap).any()
+    # an arm out of reach (far to the side) marks nothing
+    assert not _behind(cam, pos, rc, seen, col, arm + [0.5, 0, 0], parts, arm_col).any()
+
+
+def test_nothing_behind_an_arm_of_the_cloths_colour_or_too_many():
+    from reconstruct.avatar.layer_through import BehindConfig
+
+    rng = np.random.default_rng(5)
+    cam, pos, rc, seen, col, arm, parts, arm_col, _ = _limb_scene(rng, sleeve_cloth=True)
+    assert not _behind(cam, pos, rc, seen, col, arm, parts, arm_col).any()
+    cam, pos, rc, seen, col, arm, parts, arm_col, painted = _limb_scene(rng)
+    share = painted.sum() / seen.sum()
+    assert _behind(cam, pos, rc, seen, col, arm, parts, arm_col).any()
+    assert not _behind(cam, pos, rc, seen, col, arm, parts, arm_col, max_share=0.5 * share).any()
+    assert BehindConfig().max_share > 2 * share
+    # unseen layer Gaussians are never flagged
+    assert not _behind(cam, pos, rc, seen & ~painted, col, arm, parts, arm_col)[painted].any()

@@ -51,8 +51,23 @@ in the image plane (at its own depth: the fitted arm is rarely at the layer's de
 cloth's (the seen layer away from every arm), shows the arm. Nothing is marked where the cloth has
 the arm's colour (``min_contrast``), or when more than ``max_share`` of the seen layer would be.
 
+Behind an arm (``layer_behind_limbs``). A loose sleeve wider than the fitted arm, or a photo's hand a
+little off the fitted one, leaves the layer behind the arm to draw it: its Gaussians there took the
+sleeve's or the hand's colour, and a side view showed them on the garment's side as light patches
+(the long-skirt photo from 225-300 degrees). In each training frame (up to 8) a seen layer Gaussian
+whose nearest seen arm or hand Gaussian in the image lies within ``reach`` (metres at the layer
+Gaussian's depth) and more than ``depth_gap`` nearer the camera, and whose own colour is nearer to
+the arm's there (the median of the arm Gaussians within reach) than to the cloth's (its row's seen
+layer away from every arm in that frame), drew the arm. Nothing is flagged where the arm's colour
+is within ``min_contrast`` of the cloth's, or when more than ``max_share`` of the seen layer would
+be. Those in front of the arm are left alone: they drew the arm over the fitted one, and made
+transparent they let the fitted arm's filled colours into the photo's own view (the long skirt and
+the open jacket: -0.6 dB inside the mask).
+
 Use. Stage I's finish (``train/plan.py``, ``Stage1Config.layer_through``) takes them out of the
-colour sources of the layer's unseen side. Their opacity, and the opacity fill, are left as they
+colour sources of the layer's unseen side; with ``Stage1Config.layer_behind_limbs`` those behind an
+arm are unseen, and the fill gives them the cloth's colour (those next to the seen cloth keep their
+decoded colour, as every unseen Gaussian of the fill's ring does). Their opacity, and the opacity fill, are left as they
 are (counted as empty air in the fill, the open jacket photo's back came out shorter, over the
 white shirt's hem).
 
@@ -265,6 +280,70 @@ def layer_shows_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, bo
     return out
 
 
+@dataclass(frozen=True)
+class BehindConfig:
+    reach: float = 0.03  # metres in the image plane (at the layer Gaussian's depth) to the nearest seen arm or hand Gaussian
+    depth_gap: float = 0.03  # metres further from the camera than that arm Gaussian
+    min_contrast: float = 0.08  # the arm's colour there this far from the cloth's at least, or no telling them apart
+    luminance_weight: float = 0.5
+    k: int = 8  # fewest seen arm Gaussians in a frame, and fewest cloth Gaussians in a row for its own colour
+    max_share: float = 0.2  # more than this share of the seen layer flagged: none is
+
+
+def layer_behind_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, body_seen: np.ndarray,
+                       layer_colors: np.ndarray, layer_seen: np.ndarray, layer_rc: np.ndarray,
+                       config: BehindConfig = BehindConfig()) -> np.ndarray:
+    """(M,) bool over the layer's Gaussians: the seen ones that lie behind an arm or a hand in some
+    training frame and drew it there (module docstring, "Behind an arm"). ``views``: (camera,
+    body_means (N,3), layer_means (M,3)) of the training frames, posed; ``layer_rc``: each layer
+    Gaussian's (row, column) in its grid (a row's seen cloth gives it the cloth's colour)."""
+    cfg = config
+    M = len(layer_colors)
+    out = np.zeros(M, bool)
+    layer_seen = np.asarray(layer_seen, bool)
+    arms = np.flatnonzero(np.isin(np.asarray(body_parts), [PART_INDEX[p] for p in ARM_PARTS])
+                           & np.asarray(body_seen, bool))
+    if M == 0 or layer_seen.sum() < cfg.k or len(arms) < cfg.k:
+        return out
+    w = cfg.luminance_weight
+    lcol = np.asarray(layer_colors, np.float64)
+    bcol = np.asarray(body_colors, np.float64)[arms]
+    rows = np.asarray(layer_rc, np.int64)[:, 0]
+    cand = np.flatnonzero(layer_seen)
+    for camera, body_means, layer_means in views:
+        buv, bz = camera.project(np.asarray(body_means, np.float64)[arms])
+        front = bz > 0
+        if front.sum() < cfg.k:
+            continue
+        buv, bz, fcol = buv[front], bz[front], bcol[front]
+        tree = cKDTree(buv)
+        luv, lz = camera.project(np.asarray(layer_means, np.float64)[cand])
+        ok = lz > 0
+        dist, j = tree.query(luv)
+        radius = cfg.reach * camera.fx / np.where(ok, lz, 1.0)  # pixels
+        near = ok & (dist <= radius)
+        behind = near & (lz - bz[j] > cfg.depth_gap)
+        if not behind.any() or (~near).sum() < cfg.k:
+            continue
+        # the cloth's colour: the median of its row's seen layer Gaussians away from every arm in
+        # this frame (the whole seen cloth's where the row has too few)
+        cloth_all = np.median(lcol[cand[~near]], axis=0)
+        idx = np.flatnonzero(behind)
+        cloth = np.empty((len(idx), 3))
+        for r in np.unique(rows[cand[idx]]):
+            in_row = ~near & (rows[cand] == r)
+            colour = np.median(lcol[cand[in_row]], axis=0) if in_row.sum() >= cfg.k else cloth_all
+            cloth[rows[cand[idx]] == r] = colour
+        arm = np.array([np.median(fcol[nb], axis=0)
+                        for nb in tree.query_ball_point(luv[idx], radius[idx])])  # non-empty: the nearest is in
+        own = lcol[cand[idx]]
+        like = (colour_distance(arm, cloth, w) >= cfg.min_contrast) & (colour_distance(own, arm, w) < colour_distance(own, cloth, w))
+        out[cand[idx[like]]] = True
+    if out.sum() > cfg.max_share * layer_seen.sum():
+        return np.zeros(M, bool)
+    return out
+
+
 def opponent(colors: np.ndarray, luminance_weight: float = 0.5) -> np.ndarray:
     """RGB colours (..., 3) in an opponent space: (r - g, g - b, ``luminance_weight`` times the mean
     brightness)."""
@@ -331,6 +410,23 @@ def model_layer_shows_limbs(model, seen, colors, views, config: LimbConfig = Lim
     split = [(cam, np.asarray(means)[:N], np.asarray(means)[N:]) for cam, means in views]
     flags = layer_shows_limbs(split, model.parts()[:N], col[:N], seen[:N], col[N:], seen[N:],
                               model.layer_rc.cpu().numpy(), model.layer.grid_shape, opacity, config)
+    out = np.zeros(len(col), bool)
+    out[N:] = flags
+    return out
+
+
+def model_layer_behind_limbs(model, seen, colors, views, config: BehindConfig = BehindConfig()) -> np.ndarray | None:
+    """``layer_behind_limbs`` for an ``AvatarModel``: (N+M,) bool (False on the body's) from the
+    (N+M,) ``seen`` flags and canonical ``colors``; ``views``: (camera, posed means (N+M,3)) of the
+    training frames. None without a layer."""
+    if model.layer is None or model.num_layer == 0:
+        return None
+    N = model.num_body
+    col = np.asarray(colors, np.float64)
+    seen = np.asarray(seen, bool)
+    split = [(cam, np.asarray(means)[:N], np.asarray(means)[N:]) for cam, means in views]
+    flags = layer_behind_limbs(split, model.parts()[:N], col[:N], seen[:N], col[N:], seen[N:],
+                               model.layer_rc.cpu().numpy(), config)
     out = np.zeros(len(col), bool)
     out[N:] = flags
     return out

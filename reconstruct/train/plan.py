@@ -15,8 +15,9 @@ from ..appearance.wrap_fill import grazing_rule_for
 from ..avatar.layer_depth import match_layer_depth
 from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
-from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, hair_views_of, layer_reached,
-                          layer_through, layer_training_views, occluded_colors_of)
+from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, hair_views_of,
+                          layer_behind_limbs, layer_reached, layer_through, layer_training_views,
+                          occluded_colors_of)
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
 # which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its
@@ -139,6 +140,12 @@ class Stage1Plan(StagePlan):
                         notes.append(f"{int(through.sum())} garment-layer Gaussians show the body (under the hem, "
                                      "or an arm in front of the cloth), not cloth")
                         not_sources = through if not_sources is None else not_sources | through
+                if s.layer_behind_limbs:  # they drew a sleeve or a hand: the fill gives them the cloth's colour
+                    behind = layer_behind_limbs(state, context.data)
+                    if behind is not None and behind.any():
+                        state.seen &= ~behind.to(state.seen.device)
+                        notes.append(f"{int(behind.sum())} garment-layer Gaussians behind an arm or a hand drew it: "
+                                     "they are unseen, filled like the cloth")
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
                                    not_sources=not_sources, ring_trained=ring_trained,

@@ -51,7 +51,7 @@ from ..appearance.propagation import erode, erode_by_part
 from ..appearance.wrap_fill import WrapFillConfig, long_hair_colors, wrap_fill_colors
 from ..avatar.garment_layer import spread_frames
 from ..avatar.layer_cover import model_body_under_layer
-from ..avatar.layer_through import model_layer_shows_body, model_layer_shows_limbs
+from ..avatar.layer_through import model_layer_behind_limbs, model_layer_shows_body, model_layer_shows_limbs
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
@@ -203,6 +203,21 @@ def layer_through(state: AvatarState, data: TrainingData | None = None, max_fram
                  for i in spread_frames(list(data.frames), max_frames)]
         flags = flags | model_layer_shows_limbs(model, seen, colors, views)
     return torch.as_tensor(flags)
+
+
+def layer_behind_limbs(state: AvatarState, data: TrainingData, max_frames: int = 8) -> torch.Tensor | None:
+    """(N+M,) bool: the seen garment-layer Gaussians that lie behind an arm or a hand in one of up to
+    ``max_frames`` of the training frames and took its colour (``avatar.layer_through``, "Behind an
+    arm"); from the painted seen flags and the canonical colours. None without a layer."""
+    model = state.model
+    if model.layer is None or model.num_layer == 0 or not len(data.frames):
+        return None
+    seen = state.edits.paint(state.seen).cpu().bool()
+    colors = model.canonical(None).colors.detach().cpu()
+    with torch.no_grad():
+        views = [(data.targets[i].camera, state.posed(i).means.detach().cpu().double().numpy())
+                 for i in spread_frames(list(data.frames), max_frames)]
+    return torch.as_tensor(model_layer_behind_limbs(model, seen, colors, views))
 
 
 # layer opacities are set this far inside (0, 1) so that their logits stay finite
