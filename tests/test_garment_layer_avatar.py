@@ -157,6 +157,90 @@ def test_layer_gaussians_decode_pose_and_render(body, layer):
     assert float(r.alpha.sum()) > float(r0.alpha.sum()) * 1.02
 
 
+def test_grid_steps_against_numpy_on_two_tubes():
+    """``garment_layer.grid_steps`` against an independent reference in float64: each tube's columns
+    wrap round on themselves, rows by ``np.gradient`` (one-sided at the top and the hem)."""
+    from reconstruct.avatar.garment_layer import grid_steps
+
+    rng = np.random.default_rng(0)
+    R, C, T = 5, 12, 2
+    P = rng.normal(0, 0.1, (R, C, 3))
+    got = grid_steps(torch.as_tensor(P.reshape(-1, 3)), (R, C), T).numpy().reshape(R, C, 2)
+    for t in range(T):
+        block = P[:, t * 6:(t + 1) * 6]
+        side = np.linalg.norm(np.roll(block, -1, axis=1) - np.roll(block, 1, axis=1), axis=-1) / 2
+        assert np.allclose(got[:, t * 6:(t + 1) * 6, 0], side, atol=1e-12)
+    assert np.allclose(got[..., 1], np.linalg.norm(np.gradient(P, axis=0), axis=-1), atol=1e-12)
+
+
+def test_layer_discs_grow_with_the_poses_stretch_of_the_grid(body, layer):
+    """``layer_stretch_of``: 1 for a rigid pose; LBS matrices that stretch the layer 1.8 times in
+    height and 1.3 times round its rings give those factors (the built grid's steps posed, over the
+    canonical ones, over the slack; against float64 numpy), clamped to ``garment_max_stretch`` and
+    never below 1.
+    ``pose_with`` multiplies the layer discs' in-plane scales by them and leaves the body's and the
+    discs' thickness alone; a subset needs them given, and then poses its rows alike; off, the
+    canonical scales."""
+    m = AvatarModel(body, _config(garment_clearance=0.0, garment_stretch_slack=1.0), layer=layer)
+    N, M = m.num_body, m.num_layer
+    with torch.no_grad():
+        c = m.canonical()
+    eye = torch.eye(4).expand(N + M, 4, 4).clone()
+    turn = eye.clone()
+    a = 0.7
+    turn[:, :3, :3] = torch.tensor([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    turn[:, :3, 3] = torch.tensor([0.2, -0.1, 0.05])
+    assert torch.allclose(m.layer_stretch_of(turn), torch.ones(M, 2), atol=1e-5)
+    centre = m.base_positions[N:].mean(0)
+    stretch = eye.clone()
+    stretch[:, 0, 0] = stretch[:, 1, 1] = 1.3
+    stretch[:, 2, 2] = 1.8
+    stretch[:, :3, 3] = -torch.tensor([1.3, 1.3, 1.8]) * centre + centre
+    got = m.layer_stretch_of(stretch)
+    P = m.base_positions[N:].double().numpy()
+    Q = (P - centre.double().numpy()) * [1.3, 1.3, 1.8] + centre.double().numpy()
+    R, C = layer.grid_shape
+
+    def steps(X):
+        X = X.reshape(R, C, 3)
+        side = np.linalg.norm(np.roll(X, -1, axis=1) - np.roll(X, 1, axis=1), axis=-1) / 2
+        return np.stack([side, np.linalg.norm(np.gradient(X, axis=0), axis=-1)], -1).reshape(-1, 2)
+
+    want = np.clip(steps(Q) / steps(P), 1.0, 3.0)
+    assert np.allclose(got.double().numpy(), want, atol=1e-4)
+    assert float(got[:, 1].min()) > 1.5 and float(got[:, 0].max()) < 1.4  # the flare tilts the columns
+    slack = AvatarModel(body, _config(garment_clearance=0.0), layer=layer)  # the default slack, 1.3
+    assert np.allclose(slack.layer_stretch_of(stretch).double().numpy(), np.clip(steps(Q) / steps(P) / 1.3, 1.0, 3.0),
+                       atol=1e-4)
+    squeeze = eye.clone()
+    squeeze[:, 2, 2] = 0.5
+    assert float(m.layer_stretch_of(squeeze)[:, 1].max()) == 1.0  # never shrunk
+    big = eye.clone()
+    big[:, 2, 2] = 5.0
+    assert float(m.layer_stretch_of(big)[:, 1].max()) == pytest.approx(m.config.garment_max_stretch)
+    with torch.no_grad():
+        posed = m.pose_with(c, stretch)
+        plain = m.pose_with(c, stretch, stretch=torch.ones(M, 2))
+    assert torch.allclose(posed.scales[:N], c.scales[:N]) and torch.allclose(plain.scales, c.scales)
+    assert torch.allclose(posed.scales[N:, :2], c.scales[N:, :2] * got, atol=1e-6)
+    assert torch.allclose(posed.scales[N:, 2], c.scales[N:, 2])
+    idx = torch.tensor([N + 5, 3, N + M - 1, N])
+    with torch.no_grad():
+        ci = m.canonical(index=idx)
+        with pytest.raises(ValueError, match="stretch"):
+            m.pose_with(ci, stretch[idx])
+        sub = m.pose_with(ci, stretch[idx], stretch=got)
+    assert torch.allclose(sub.scales, posed.scales[idx], atol=1e-6)
+    off = AvatarModel(body, _config(garment_clearance=0.0, garment_stretch_scales=False), layer=layer)
+    assert off.layer_stretch_of(stretch) is None
+    with torch.no_grad():
+        assert torch.allclose(off.pose_with(off.canonical(), stretch).scales, off.canonical().scales)
+    with pytest.raises(ValueError, match="garment_max_stretch"):
+        _config(garment_max_stretch=0.5)
+    with pytest.raises(ValueError, match="garment_stretch_slack"):
+        _config(garment_stretch_slack=0.9)
+
+
 def test_layer_opacities_are_learnable(body, layer):
     m = AvatarModel(body, _config(), layer=layer)
     c = m.canonical()

@@ -110,9 +110,12 @@ def test_subsets_pose_like_the_whole_and_need_the_clearance_matrices(body):
     with torch.no_grad():
         whole = m.pose(m.canonical(), T)
         M = m.lbs_matrices(T)
-        sub = m.pose_with(m.canonical(index=idx), M[idx], m.clearance_matrices(M))
+        sub = m.pose_with(m.canonical(index=idx), M[idx], m.clearance_matrices(M), m.layer_stretch_of(M))
         assert torch.allclose(sub.means, whole.means[idx], atol=1e-6)
-        assert torch.allclose(m.pose(m.canonical(index=idx), T).means, whole.means[idx], atol=1e-6)
+        assert torch.allclose(sub.scales, whole.scales[idx], atol=1e-6)
+        posed = m.pose(m.canonical(index=idx), T)
+        assert torch.allclose(posed.means, whole.means[idx], atol=1e-6)
+        assert torch.allclose(posed.scales, whole.scales[idx], atol=1e-6)
         with pytest.raises(ValueError, match="clearance matrices"):
             m.pose_with(m.canonical(index=idx), M[idx])
         # a subset of body Gaussians only needs none

@@ -79,6 +79,18 @@ class AvatarConfig:
     # covers (layer_clearance.py: the legs' own skinning turns them out through cloth skinned with
     # a blend); 0: off. Runs recorded before it load with 0
     garment_clearance: float = 0.005
+    # a garment layer's discs grow round the ring and down the column by as much as the pose
+    # stretches its grid there (its built grid posed by the layer's own skinning, against the
+    # canonical steps; never shrunk, at most garment_max_stretch): cloth skinned with weights
+    # blended across the legs stretches where the legs part, and discs sized for the canonical grid
+    # let the background through in stripes between the rows (a photo's skirt swung to one side,
+    # seen from behind). False: the canonical sizes in every pose. Runs recorded before it load
+    # with False
+    garment_stretch_scales: bool = True
+    # ... by the stretch past this slack (a grid stretched 1.3 times still closes: the discs at the
+    # scale floor, 0.6 of a step, overlap), at most garment_max_stretch
+    garment_stretch_slack: float = 1.3
+    garment_max_stretch: float = 3.0
 
     @classmethod
     def paper(cls, **kw) -> "AvatarConfig":
@@ -101,6 +113,10 @@ class AvatarConfig:
             raise ValueError(f"AvatarConfig.decode_resolution must be at least 8 or None, found {self.decode_resolution}")
         if not 1 <= self.skip_layer < self.trunk_layers:
             raise ValueError(f"AvatarConfig.skip_layer must be in [1, {self.trunk_layers}), found {self.skip_layer}")
+        if not self.garment_stretch_slack >= 1.0:
+            raise ValueError(f"AvatarConfig.garment_stretch_slack must be at least 1, found {self.garment_stretch_slack}")
+        if not self.garment_max_stretch >= 1.0:
+            raise ValueError(f"AvatarConfig.garment_max_stretch must be at least 1, found {self.garment_max_stretch}")
         if self.decoder_init not in DECODER_INITS:
             raise ValueError(f"AvatarConfig.decoder_init must be one of {', '.join(DECODER_INITS)}, "
                              f"found {self.decoder_init!r}")

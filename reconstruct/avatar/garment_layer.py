@@ -101,6 +101,23 @@ def _roll_columns(a, shift: int, tubes: int):
     return np.roll(b, shift, axis=2).reshape(a.shape)
 
 
+def grid_steps(points: torch.Tensor, grid_shape: tuple[int, int], tubes: int) -> torch.Tensor:
+    """(R*C, 2) the length of one step round the ring and one down the column at each point of a
+    layer's grid, ``points`` (R*C, 3) in the grid's order (row by row): central differences, each
+    tube wrapping round on itself, one-sided at the top and the hem rows (as ``np.gradient``)."""
+    R, C = grid_shape
+    P = points.reshape(R, C, 3)
+    side = (_roll_columns(P, -1, tubes) - _roll_columns(P, 1, tubes)).norm(dim=-1) / 2
+    if R == 1:
+        down = torch.zeros_like(side)
+    else:
+        d = torch.empty_like(P)
+        d[1:-1] = (P[2:] - P[:-2]) / 2
+        d[0], d[-1] = P[1] - P[0], P[-1] - P[-2]
+        down = d.norm(dim=-1)
+    return torch.stack([side, down], -1).reshape(R * C, 2)
+
+
 @dataclass(frozen=True)
 class VolumeHint:
     """Where the garment layer goes, in the body's canonical heights (metres)."""
@@ -213,11 +230,7 @@ class GarmentLayer:
         """(N,2) float32 metres: the 3D length of one grid step round the ring (the tangent's
         direction) and one down the column (central differences; one-sided at the top and hem):
         a disc's in-plane scale, like ``texel_frames``' steps of the body's texels."""
-        R, C = self.grid_shape
-        P = self.positions.double().reshape(R, C, 3)
-        side = (_roll_columns(P, -1, self.tubes) - _roll_columns(P, 1, self.tubes)).norm(dim=-1) / 2
-        down = torch.as_tensor(np.gradient(P.numpy(), axis=0)).norm(dim=-1)
-        return torch.stack([side, down], -1).reshape(R * C, 2).float()
+        return grid_steps(self.positions.double(), self.grid_shape, self.tubes).float()
 
     def same_as(self, other: "GarmentLayer | None") -> bool:
         """The same geometry (grid, positions, weights, normals, tangents, spacing)."""

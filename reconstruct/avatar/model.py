@@ -35,12 +35,17 @@ body's [-1, 1] square and continuous across the seam -- so the decoder can tell 
 the body's inputs are exactly today's. Stage II's pose features are the body's (a map over its UV
 atlas): the layer decodes [L, L, uv] in both stages. Layer Gaussians have a learned opacity
 (``sigmoid(garment_opacity_gain * layer_opacity)``); body Gaussians stay opaque. Posed, the layer's
-Gaussians are kept ``garment_clearance`` outside the posed body (``layer_clearance``). Without a layer
+Gaussians are kept ``garment_clearance`` outside the posed body (``layer_clearance``), and its discs
+grow round the ring and down the column as far as the pose stretches its grid there
+(``layer_stretch_of``, ``garment_stretch_scales``): skinned with weights blended across the legs,
+the cloth stretches where they part, and discs sized for the canonical grid let the background
+through between its rows. Without a layer
 nothing of this exists and the model is the one before the layer (same parameters, same outputs).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -53,7 +58,7 @@ from ..body.lbs import apply_normals, apply_points, blend, safe_normalize
 from ..body.uv_map import UVMap, build_uv_map, texel_frames, texel_neighbours, texel_spacing
 from .config import AvatarConfig
 from .decoder import GaussianDecoder
-from .garment_layer import GARMENT_PART, GarmentLayer, interpolation_matrix
+from .garment_layer import GARMENT_PART, GarmentLayer, grid_steps, interpolation_matrix
 from .gaussian_sets import CanonicalGaussians, PosedGaussians, frame_quaternions
 from .layer_clearance import covered_ids, push_out
 from .layer_nodes import layer_nodes
@@ -494,7 +499,10 @@ class AvatarModel(nn.Module):
         # a subset's matrices lack the body Gaussians the layer is kept clear of; all N+M hold them
         subset = canon.index is not None and self._clears(canon)
         clear = self.lbs_matrices(pose_transforms, self.layer_clear_ids) if subset else None
-        return self.pose_with(canon, self.lbs_matrices(pose_transforms, canon.index), clear)
+        # ... nor the whole layer's grid, whose stretch sizes the subset's discs
+        stretch = (self.layer_stretch_of(self.lbs_matrices(pose_transforms))
+                   if canon.index is not None and bool((canon.index >= self.num_body).any()) else None)
+        return self.pose_with(canon, self.lbs_matrices(pose_transforms, canon.index), clear, stretch)
 
     def clearance_matrices(self, matrices: torch.Tensor) -> torch.Tensor | None:
         """The LBS matrices of the body Gaussians the layer is kept clear of, from those of all
@@ -503,17 +511,35 @@ class AvatarModel(nn.Module):
             return None
         return matrices[self.layer_clear_ids]
 
+    def layer_stretch_of(self, matrices: torch.Tensor) -> torch.Tensor | None:
+        """(M,2) how far a pose stretches the garment layer's grid round the ring and down the
+        column at each of its Gaussians, from the LBS ``matrices`` of all N+M Gaussians
+        (``lbs_matrices``): the built grid posed, its steps (``garment_layer.grid_steps``) over the
+        canonical ones, over ``garment_stretch_slack``, from 1 (never shrunk) to
+        ``garment_max_stretch``; no gradient. None
+        without a layer or with ``garment_stretch_scales`` off."""
+        if self.layer is None or self.num_layer == 0 or not self.config.garment_stretch_scales:
+            return None
+        nb = self.num_body
+        with torch.no_grad():
+            M = matrices.detach()[nb:]
+            posed = grid_steps(apply_points(M, self.base_positions[nb:].to(M)), self.layer.grid_shape, self.layer.tubes)
+            ratio = posed / self.texel_steps[nb:].to(posed).clamp_min(1e-9) / float(self.config.garment_stretch_slack)
+            return ratio.clamp(1.0, float(self.config.garment_max_stretch))
+
     def _clears(self, canon: CanonicalGaussians) -> bool:
         if self.layer is None or self.config.garment_clearance <= 0:
             return False
         return canon.index is None or bool((canon.index >= self.num_body).any())
 
     def pose_with(self, canon: CanonicalGaussians, matrices: torch.Tensor,
-                  clearance: torch.Tensor | None = None) -> PosedGaussians:
+                  clearance: torch.Tensor | None = None, stretch: torch.Tensor | None = None) -> PosedGaussians:
         """The Gaussians moved by per-Gaussian LBS ``matrices`` (N,4,4) (``lbs_matrices``). A garment
         layer's are then kept ``garment_clearance`` outside the posed body (``layer_clearance``),
         which takes ``clearance``, the matrices of the body Gaussians it is kept clear of
-        (``clearance_matrices``; read from ``matrices`` when these are all N+M Gaussians')."""
+        (``clearance_matrices``; read from ``matrices`` when these are all N+M Gaussians'), and its
+        discs grow with the pose's stretch of its grid, ``stretch`` (``layer_stretch_of`` the
+        matrices of all N+M Gaussians; read from ``matrices`` when these are all of them)."""
         tangents = None if canon.tangents is None else matrices[:, :3, :3] @ canon.tangents[..., None]
         means = apply_points(matrices, canon.means)
         if self._clears(canon):
@@ -523,8 +549,28 @@ class AvatarModel(nn.Module):
                                      "matrices of the body Gaussians it is kept clear of (clearance_matrices)")
                 clearance = self.clearance_matrices(matrices)
             means = self._clear_layer(canon, means, clearance)
+        canon = self._stretched(canon, matrices, stretch)
         return self.splats(canon, means, apply_normals(matrices, canon.normals),
                            None if tangents is None else tangents[..., 0])
+
+    def _stretched(self, canon: CanonicalGaussians, matrices: torch.Tensor,
+                   stretch: torch.Tensor | None) -> CanonicalGaussians:
+        """``canon`` with its garment-layer discs' in-plane scales times the pose's stretch."""
+        nb = self.num_body
+        if (canon.tangents is None or self.layer is None or not self.config.garment_stretch_scales
+                or (canon.index is not None and not bool((canon.index >= nb).any()))):
+            return canon
+        if stretch is None:
+            if canon.index is not None:
+                raise ValueError("pose_with: a subset with garment-layer Gaussians needs the layer's stretch "
+                                 "from the matrices of all Gaussians (layer_stretch_of)")
+            stretch = self.layer_stretch_of(matrices)
+        rows = (torch.arange(nb, len(canon.scales), device=canon.scales.device) if canon.index is None
+                else torch.nonzero(canon.index >= nb)[:, 0])
+        layer_ids = rows - nb if canon.index is None else canon.index[rows] - nb
+        factor = torch.ones_like(canon.scales)
+        factor[rows, :2] = stretch[layer_ids].to(factor)
+        return dataclasses.replace(canon, scales=canon.scales * factor)
 
     def _clear_layer(self, canon: CanonicalGaussians, means: torch.Tensor, clearance: torch.Tensor) -> torch.Tensor:
         nb = self.num_body

@@ -241,6 +241,8 @@ class Stage1Config(StageSettings):
             d["avatar"] = {**d["avatar"], "decoder_init": "torch"}  # recorded before the decoder's He init
         if isinstance(d.get("avatar"), dict) and "garment_clearance" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "garment_clearance": 0.0}  # recorded before the layer kept clear of the body
+        if isinstance(d.get("avatar"), dict) and "garment_stretch_scales" not in d["avatar"]:
+            d["avatar"] = {**d["avatar"], "garment_stretch_scales": False}  # recorded before discs followed the pose's stretch
         if isinstance(d.get("avatar"), dict) and "garment_layer" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "garment_layer": "off"}  # recorded before the garment layer existed
         return super().from_dict(d)

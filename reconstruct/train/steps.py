@@ -123,7 +123,8 @@ class GivenViewStep(TrainingStep):
         index = None if margin is None else model.facing(matrices, tgt.camera.center, margin)
         # state.decode(i) for the chosen Gaussians (with the edits: locked texels keep their attributes)
         canon, pose_features = state.decode(i, index=index)
-        posed = model.pose_with(canon, matrices if index is None else matrices[index], model.clearance_matrices(matrices))
+        posed = model.pose_with(canon, matrices if index is None else matrices[index], model.clearance_matrices(matrices),
+                                model.layer_stretch_of(matrices))
         if not gaussians_finite(posed):
             return StepOutcome(i, skipped=True)
         if self.layer_colour_outside and model.num_layer:
