@@ -768,19 +768,17 @@ def test_the_model_finds_the_legs_under_its_layers_hem(layered):
     assert not flags[N:][~hem].any()
 
 
-def test_the_model_finds_layer_gaussians_painted_like_the_arm_in_front_of_them(layered):
-    """``model_layer_shows_limbs`` on the model's own Gaussians, posed in the training frames: the
-    seen layer Gaussians within 4 cm (in the image plane) of a projected arm Gaussian in frame 0,
-    painted in the sleeve's colour over grey cloth, are flagged; no other Gaussian is."""
-    from reconstruct.avatar.layer_through import ARM_PARTS, LimbConfig, model_layer_shows_limbs
+def _arm_over_the_layer(t):
+    """The layered trainer's model with grey colours and sleeve-coloured arms, frame 0's camera and
+    posed means (a copy), the middle of the layer's front upper third there and the unit direction
+    from it to the camera."""
+    from reconstruct.avatar.layer_through import ARM_PARTS
     from reconstruct.body.parts import PART_INDEX
 
-    t = layered
     m = t.model
     N, M = m.num_body, m.num_layer
-    parts = m.parts()
     sleeve, grey = np.array([0.70, 0.74, 0.83]), np.array([0.30, 0.30, 0.32])
-    arm = np.isin(parts[:N], [PART_INDEX[p] for p in ARM_PARTS])
+    arm = np.isin(m.parts()[:N], [PART_INDEX[p] for p in ARM_PARTS])
     colours = np.tile(grey, (N + M, 1))
     colours[:N][arm] = sleeve
     front = m.base_positions[N:, 1].numpy() < m.base_positions[N:, 1].numpy().mean()
@@ -788,11 +786,21 @@ def test_the_model_finds_layer_gaussians_painted_like_the_arm_in_front_of_them(l
     cam = t.data.targets[i].camera
     with torch.no_grad():
         means = t.state.posed(i).means.double().numpy().copy()
-    # the arm moved over the layer's front in the image, 5 cm nearer the camera (a hand on a skirt)
     rows = m.layer_rc[:, 0].numpy()
     target = means[N:][front & (rows < rows.max() // 3)].mean(0)
-    towards = cam.center - target
-    means[:N][arm] += target + 0.05 * towards / np.linalg.norm(towards) - means[:N][arm].mean(0)
+    towards = (cam.center - target) / np.linalg.norm(cam.center - target)
+    return m, N, M, arm, colours, sleeve, front, cam, means, target, towards
+
+
+def test_the_model_finds_layer_gaussians_painted_like_the_arm_in_front_of_them(layered):
+    """``model_layer_shows_limbs`` on the model's own Gaussians, posed in the training frames: the
+    seen layer Gaussians within 4 cm (in the image plane) of a projected arm Gaussian in frame 0,
+    painted in the sleeve's colour over grey cloth, are flagged; no other Gaussian is."""
+    from reconstruct.avatar.layer_through import LimbConfig, model_layer_shows_limbs
+
+    m, N, M, arm, colours, sleeve, front, cam, means, target, towards = _arm_over_the_layer(layered)
+    # the arm moved over the layer's front in the image, 5 cm nearer the camera (a hand on a skirt)
+    means[:N][arm] += target + 0.05 * towards - means[:N][arm].mean(0)
     views = [(cam, means)]
     uv, depth = cam.project(means)
     d = np.min(np.linalg.norm(uv[N:][:, None] - uv[:N][arm][None], axis=2), 1) * depth[N:] / cam.fx
@@ -817,25 +825,9 @@ def test_the_model_finds_layer_gaussians_painted_like_the_arm_behind_it(layered)
     in the image, painted in the sleeve's colour over grey cloth, lie behind it and are flagged;
     the same with the arm 15 cm behind the layer (inside the skirt) flags nothing, nor does any
     body Gaussian."""
-    from reconstruct.avatar.layer_through import ARM_PARTS, BehindConfig, model_layer_behind_limbs
-    from reconstruct.body.parts import PART_INDEX
+    from reconstruct.avatar.layer_through import BehindConfig, model_layer_behind_limbs
 
-    t = layered
-    m = t.model
-    N, M = m.num_body, m.num_layer
-    parts = m.parts()
-    sleeve, grey = np.array([0.70, 0.74, 0.83]), np.array([0.30, 0.30, 0.32])
-    arm = np.isin(parts[:N], [PART_INDEX[p] for p in ARM_PARTS])
-    colours = np.tile(grey, (N + M, 1))
-    colours[:N][arm] = sleeve
-    front = m.base_positions[N:, 1].numpy() < m.base_positions[N:, 1].numpy().mean()
-    i = t.data.frames[0]
-    cam = t.data.targets[i].camera
-    with torch.no_grad():
-        means = t.state.posed(i).means.double().numpy().copy()
-    rows = m.layer_rc[:, 0].numpy()
-    target = means[N:][front & (rows < rows.max() // 3)].mean(0)
-    towards = (cam.center - target) / np.linalg.norm(cam.center - target)
+    m, N, M, arm, colours, sleeve, front, cam, means, target, towards = _arm_over_the_layer(layered)
     seen = np.ones(N + M, bool)
     seen[N:] = front
     config = BehindConfig(k=3, reach=0.04)

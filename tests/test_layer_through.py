@@ -200,9 +200,10 @@ def _limb_scene(rng, arm_rows=range(0, 10), sleeve_cloth=False):
 
 
 def _limbs(cam, pos, rc, seen, col, arm, parts, arm_col, **kw):
-    from reconstruct.avatar.layer_through import layer_shows_limbs
+    from reconstruct.avatar.layer_through import LimbConfig, layer_shows_limbs
 
-    return layer_shows_limbs([(cam, arm, pos)], parts, arm_col, np.ones(len(arm), bool), col, seen, rc, (R, C), **kw)
+    return layer_shows_limbs([(cam, arm, pos)], parts, arm_col, np.ones(len(arm), bool), col, seen, rc, (R, C),
+                             config=LimbConfig(**kw))
 
 
 def test_layer_gaussians_painted_like_an_arm_in_front_of_them_are_found():
@@ -229,17 +230,20 @@ def test_the_sleeves_colour_away_from_the_arm_is_cloth():
     assert not out[print_].any() and out[painted].mean() > 0.9
 
 
-def test_no_limb_marks_when_the_cloth_is_the_sleeves_colour_or_too_many():
+@pytest.mark.parametrize("rule", ["limbs", "behind"])
+def test_no_limb_marks_when_the_cloth_is_the_sleeves_colour_or_too_many_or_out_of_reach(rule):
+    """Both arm rules (``layer_shows_limbs``, ``layer_behind_limbs``): cloth in the sleeve's colour
+    cannot be told from the arm; more than ``max_share`` of the seen layer flagged is taken for
+    cloth; an arm far to the side in the image flags nothing."""
     rng = np.random.default_rng(2)
     cam, pos, rc, seen, col, arm, parts, arm_col, _ = _limb_scene(rng, sleeve_cloth=True)
-    assert not _limbs(cam, pos, rc, seen, col, arm, parts, arm_col).any()
+    flags = _limbs if rule == "limbs" else _behind
+    assert not flags(cam, pos, rc, seen, col, arm, parts, arm_col).any()
     cam, pos, rc, seen, col, arm, parts, arm_col, painted = _limb_scene(rng)
-    from reconstruct.avatar.layer_through import LimbConfig
-
+    assert flags(cam, pos, rc, seen, col, arm, parts, arm_col).any()
     share = painted.sum() / seen.sum()
-    assert not _limbs(cam, pos, rc, seen, col, arm, parts, arm_col, config=LimbConfig(max_share=0.5 * share)).any()
-    # and an arm out of reach (far to the side) marks nothing
-    assert not _limbs(cam, pos, rc, seen, col, arm + [0.5, 0, 0], parts, arm_col).any()
+    assert not flags(cam, pos, rc, seen, col, arm, parts, arm_col, max_share=0.5 * share).any()
+    assert not flags(cam, pos, rc, seen, col, arm + [0.5, 0, 0], parts, arm_col).any()
 
 
 # ---- arms and hands in front of the layer, the layer behind them (``layer_behind_limbs``) ----
@@ -280,20 +284,5 @@ def test_the_layer_in_front_of_an_arm_or_out_of_reach_is_not_behind_it():
     uv, depth = cam.project(pos)
     gap = float((depth[painted] - cam.project(arm)[1].mean()).max()) + 0.05
     assert not _behind(cam, pos, rc, seen, col, arm, parts, arm_col, depth_gap=gap).any()
-    # an arm out of reach (far to the side) marks nothing
-    assert not _behind(cam, pos, rc, seen, col, arm + [0.5, 0, 0], parts, arm_col).any()
-
-
-def test_nothing_behind_an_arm_of_the_cloths_colour_or_too_many():
-    from reconstruct.avatar.layer_through import BehindConfig
-
-    rng = np.random.default_rng(5)
-    cam, pos, rc, seen, col, arm, parts, arm_col, _ = _limb_scene(rng, sleeve_cloth=True)
-    assert not _behind(cam, pos, rc, seen, col, arm, parts, arm_col).any()
-    cam, pos, rc, seen, col, arm, parts, arm_col, painted = _limb_scene(rng)
-    share = painted.sum() / seen.sum()
-    assert _behind(cam, pos, rc, seen, col, arm, parts, arm_col).any()
-    assert not _behind(cam, pos, rc, seen, col, arm, parts, arm_col, max_share=0.5 * share).any()
-    assert BehindConfig().max_share > 2 * share
     # unseen layer Gaussians are never flagged
     assert not _behind(cam, pos, rc, seen & ~painted, col, arm, parts, arm_col)[painted].any()

@@ -390,11 +390,8 @@ def model_layer_shows_body(model, seen, colors, config: ThroughConfig = ThroughC
     seen = np.asarray(seen, bool)
     hidden = model_body_under_layer(model)[:N] >= 0
     opacity = model.opacities().detach().cpu().double().numpy()[N:]
-    flags = layer_shows_body(pos[:N], model.parts()[:N], col[:N], seen[:N], hidden, pos[N:], col[N:], seen[N:],
-                             model.layer_rc.cpu().numpy(), model.layer.grid_shape, opacity, config)
-    out = np.zeros(len(pos), bool)
-    out[N:] = flags
-    return out
+    return _on_layer(layer_shows_body(pos[:N], model.parts()[:N], col[:N], seen[:N], hidden, pos[N:], col[N:],
+                                      seen[N:], model.layer_rc.cpu().numpy(), model.layer.grid_shape, opacity, config), N)
 
 
 def model_layer_shows_limbs(model, seen, colors, views, config: LimbConfig = LimbConfig()) -> np.ndarray | None:
@@ -403,30 +400,30 @@ def model_layer_shows_limbs(model, seen, colors, views, config: LimbConfig = Lim
     training frames. None without a layer."""
     if model.layer is None or model.num_layer == 0:
         return None
-    N = model.num_body
-    col = np.asarray(colors, np.float64)
-    seen = np.asarray(seen, bool)
+    N, col, seen, split = _split_views(model, seen, colors, views)
     opacity = model.opacities().detach().cpu().double().numpy()[N:]
-    split = [(cam, np.asarray(means)[:N], np.asarray(means)[N:]) for cam, means in views]
-    flags = layer_shows_limbs(split, model.parts()[:N], col[:N], seen[:N], col[N:], seen[N:],
-                              model.layer_rc.cpu().numpy(), model.layer.grid_shape, opacity, config)
-    out = np.zeros(len(col), bool)
-    out[N:] = flags
-    return out
+    return _on_layer(layer_shows_limbs(split, model.parts()[:N], col[:N], seen[:N], col[N:], seen[N:],
+                                       model.layer_rc.cpu().numpy(), model.layer.grid_shape, opacity, config), N)
 
 
 def model_layer_behind_limbs(model, seen, colors, views, config: BehindConfig = BehindConfig()) -> np.ndarray | None:
-    """``layer_behind_limbs`` for an ``AvatarModel``: (N+M,) bool (False on the body's) from the
-    (N+M,) ``seen`` flags and canonical ``colors``; ``views``: (camera, posed means (N+M,3)) of the
-    training frames. None without a layer."""
+    """``layer_behind_limbs`` for an ``AvatarModel``, with the inputs and output of
+    ``model_layer_shows_limbs``."""
     if model.layer is None or model.num_layer == 0:
         return None
+    N, col, seen, split = _split_views(model, seen, colors, views)
+    return _on_layer(layer_behind_limbs(split, model.parts()[:N], col[:N], seen[:N], col[N:], seen[N:],
+                                        model.layer_rc.cpu().numpy(), config), N)
+
+
+def _split_views(model, seen, colors, views):
+    """The model-level calls' inputs: the body's count N, the colours and seen flags as arrays, and
+    each view's posed means split into the body's and the layer's."""
     N = model.num_body
-    col = np.asarray(colors, np.float64)
-    seen = np.asarray(seen, bool)
     split = [(cam, np.asarray(means)[:N], np.asarray(means)[N:]) for cam, means in views]
-    flags = layer_behind_limbs(split, model.parts()[:N], col[:N], seen[:N], col[N:], seen[N:],
-                               model.layer_rc.cpu().numpy(), config)
-    out = np.zeros(len(col), bool)
-    out[N:] = flags
-    return out
+    return N, np.asarray(colors, np.float64), np.asarray(seen, bool), split
+
+
+def _on_layer(flags: np.ndarray, num_body: int) -> np.ndarray:
+    """(N+M,) bool: the layer's (M,) ``flags`` after N False for the body's Gaussians."""
+    return np.concatenate([np.zeros(num_body, bool), np.asarray(flags, bool)])
