@@ -865,7 +865,7 @@ def test_finish_unsees_the_layer_behind_a_limb_before_the_fill(layered, monkeypa
     seen_layer = torch.nonzero(t.state.seen[N:]).squeeze(1)
     assert len(seen_layer) >= 4
     flagged[N + seen_layer[:4]] = True
-    monkeypatch.setattr(plan_module, "layer_behind_limbs", lambda state, data: flagged.clone())
+    monkeypatch.setattr(plan_module, "layer_behind_limbs", lambda state, data, **kw: flagged.clone())
     handed = []
     real = plan_module.fill_unseen_colors
     monkeypatch.setattr(plan_module, "fill_unseen_colors",

@@ -496,13 +496,12 @@ class AvatarModel(nn.Module):
             return out
 
     def pose(self, canon: CanonicalGaussians, pose_transforms: torch.Tensor) -> PosedGaussians:
-        # a subset's matrices lack the body Gaussians the layer is kept clear of; all N+M hold them
-        subset = canon.index is not None and self._clears(canon)
-        clear = self.lbs_matrices(pose_transforms, self.layer_clear_ids) if subset else None
-        # ... nor the whole layer's grid, whose stretch sizes the subset's discs
-        stretch = (self.layer_stretch_of(self.lbs_matrices(pose_transforms))
-                   if canon.index is not None and bool((canon.index >= self.num_body).any()) else None)
-        return self.pose_with(canon, self.lbs_matrices(pose_transforms, canon.index), clear, stretch)
+        if canon.index is not None and bool((canon.index >= self.num_body).any()):
+            # a subset's matrices lack the body Gaussians the layer is kept clear of and the rest of
+            # the layer's grid, whose stretch sizes its discs: all N+M hold them
+            full = self.lbs_matrices(pose_transforms)
+            return self.pose_with(canon, full[canon.index], self.clearance_matrices(full), self.layer_stretch_of(full))
+        return self.pose_with(canon, self.lbs_matrices(pose_transforms, canon.index))
 
     def clearance_matrices(self, matrices: torch.Tensor) -> torch.Tensor | None:
         """The LBS matrices of the body Gaussians the layer is kept clear of, from those of all
@@ -565,17 +564,20 @@ class AvatarModel(nn.Module):
                 raise ValueError("pose_with: a subset with garment-layer Gaussians needs the layer's stretch "
                                  "from the matrices of all Gaussians (layer_stretch_of)")
             stretch = self.layer_stretch_of(matrices)
-        rows = (torch.arange(nb, len(canon.scales), device=canon.scales.device) if canon.index is None
-                else torch.nonzero(canon.index >= nb)[:, 0])
+        rows = self._layer_rows(canon, canon.scales)
         layer_ids = rows - nb if canon.index is None else canon.index[rows] - nb
         factor = torch.ones_like(canon.scales)
         factor[rows, :2] = stretch[layer_ids].to(factor)
         return dataclasses.replace(canon, scales=canon.scales * factor)
 
-    def _clear_layer(self, canon: CanonicalGaussians, means: torch.Tensor, clearance: torch.Tensor) -> torch.Tensor:
+    def _layer_rows(self, canon: CanonicalGaussians, like: torch.Tensor) -> torch.Tensor:
+        """The rows of ``canon`` (and of ``like``, one row per Gaussian) that are garment-layer Gaussians."""
         nb = self.num_body
-        rows = (torch.arange(nb, len(means), device=means.device) if canon.index is None
+        return (torch.arange(nb, len(like), device=like.device) if canon.index is None
                 else torch.nonzero(canon.index >= nb)[:, 0])
+
+    def _clear_layer(self, canon: CanonicalGaussians, means: torch.Tensor, clearance: torch.Tensor) -> torch.Tensor:
+        rows = self._layer_rows(canon, means)
         ids = self.layer_clear_ids
         points = apply_points(clearance, self.base_positions[ids].to(clearance))
         normals = lambda j: apply_normals(clearance[j], self.base_normals[ids[j]].to(clearance))  # noqa: E731

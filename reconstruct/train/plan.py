@@ -16,7 +16,7 @@ from ..avatar.layer_depth import match_layer_depth
 from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, hair_views_of,
-                          layer_behind_limbs, layer_reached, layer_through, layer_training_views,
+                          layer_behind_limbs, layer_reached, layer_through, layer_training_views, limb_views,
                           occluded_colors_of)
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
@@ -134,14 +134,16 @@ class Stage1Plan(StagePlan):
                     shaped = faced | layer_reached(state, coverage.total_max, _RING_MIN_REACH)
                     ring_trained = torch.cat([torch.ones(state.model.num_body, dtype=torch.bool), shaped.cpu().bool()])
                 empty = views.get("off_person")
+                # the training frames the arm rules read, posed once for both
+                arms = limb_views(state, context.data) if s.layer_through or s.layer_behind_limbs else None
                 if s.layer_through:  # no colour source for the layer's unseen side
-                    through = layer_through(state, context.data)
+                    through = layer_through(state, context.data, views=arms)
                     if through is not None and through.any():
                         notes.append(f"{int(through.sum())} garment-layer Gaussians show the body (under the hem, "
                                      "or an arm in front of the cloth), not cloth")
                         not_sources = through if not_sources is None else not_sources | through
                 if s.layer_behind_limbs:  # they drew a sleeve or a hand: the fill gives them the cloth's colour
-                    behind = layer_behind_limbs(state, context.data)
+                    behind = layer_behind_limbs(state, context.data, views=arms)
                     if behind is not None and behind.any():
                         state.seen &= ~behind.to(state.seen.device)
                         notes.append(f"{int(behind.sum())} garment-layer Gaussians behind an arm or a hand drew it: "

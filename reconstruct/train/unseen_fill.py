@@ -187,36 +187,45 @@ def occluded_colors_of(state: AvatarState, data: TrainingData, *,
 
 
 @torch.no_grad()
-def layer_through(state: AvatarState, data: TrainingData | None = None, max_frames: int = 8) -> torch.Tensor | None:
+def limb_views(state: AvatarState, data: TrainingData, max_frames: int = 8) -> list:
+    """(camera, posed means (N+M,3) float64) of up to ``max_frames`` training frames spread over the
+    sequence: what the garment layer's arm rules (``layer_through``, ``layer_behind_limbs``) read."""
+    with torch.no_grad():
+        return [(data.targets[i].camera, state.posed(i).means.detach().cpu().double().numpy())
+                for i in spread_frames(list(data.frames), max_frames)]
+
+
+def layer_through(state: AvatarState, data: TrainingData | None = None, max_frames: int = 8,
+                  views: list | None = None) -> torch.Tensor | None:
     """(N+M,) bool: the seen garment-layer Gaussians that show the body, not cloth
-    (``avatar.layer_through``): under its hem, and, given the training ``data``, in front of an arm
-    or a hand in up to ``max_frames`` of its frames; from the painted seen flags and the canonical
-    colours. None without a layer."""
+    (``avatar.layer_through``): under its hem, and, given the training ``data`` (or their
+    ``limb_views``), in front of an arm or a hand in up to ``max_frames`` of its frames; from the
+    painted seen flags and the canonical colours. None without a layer."""
     model = state.model
     seen = state.edits.paint(state.seen).cpu().bool()
     colors = model.canonical(None).colors.detach().cpu()
     flags = model_layer_shows_body(model, seen, colors)
     if flags is None:
         return None
-    if data is not None and len(data.frames):
-        views = [(data.targets[i].camera, state.posed(i).means.detach().cpu().double().numpy())
-                 for i in spread_frames(list(data.frames), max_frames)]
+    if views is None and data is not None and len(data.frames):
+        views = limb_views(state, data, max_frames)
+    if views:
         flags = flags | model_layer_shows_limbs(model, seen, colors, views)
     return torch.as_tensor(flags)
 
 
-def layer_behind_limbs(state: AvatarState, data: TrainingData, max_frames: int = 8) -> torch.Tensor | None:
+def layer_behind_limbs(state: AvatarState, data: TrainingData, max_frames: int = 8,
+                       views: list | None = None) -> torch.Tensor | None:
     """(N+M,) bool: the seen garment-layer Gaussians that lie behind an arm or a hand in one of up to
-    ``max_frames`` of the training frames and took its colour (``avatar.layer_through``, "Behind an
-    arm"); from the painted seen flags and the canonical colours. None without a layer."""
+    ``max_frames`` of the training frames (or their ``limb_views``) and took its colour
+    (``avatar.layer_through``, "Behind an arm"); from the painted seen flags and the canonical
+    colours. None without a layer."""
     model = state.model
     if model.layer is None or model.num_layer == 0 or not len(data.frames):
         return None
     seen = state.edits.paint(state.seen).cpu().bool()
     colors = model.canonical(None).colors.detach().cpu()
-    with torch.no_grad():
-        views = [(data.targets[i].camera, state.posed(i).means.detach().cpu().double().numpy())
-                 for i in spread_frames(list(data.frames), max_frames)]
+    views = limb_views(state, data, max_frames) if views is None else views
     return torch.as_tensor(model_layer_behind_limbs(model, seen, colors, views))
 
 
