@@ -852,9 +852,51 @@ def test_the_model_finds_layer_gaussians_painted_like_the_arm_behind_it(layered)
     assert painted.sum() >= 3 and not flags.any()
 
 
-def test_finish_unsees_the_layer_behind_a_limb_before_the_fill(layered, monkeypatch):
-    """Stage I's finish (``layer_behind_limbs``) hands the fill the layer Gaussians the rule flags as
-    unseen, says how many in its note, and with the setting off leaves them seen."""
+def test_the_model_finds_arm_gaussians_that_drew_the_cloth_they_lie_over(layered):
+    """``model_limbs_over_cloth`` on the model's own Gaussians: the left arm moved 5 cm in front of
+    the layer's front in frame 0 (a hand on a skirt), its Gaussians over the cloth in the image
+    painted grey like it; the right arm, in the sleeve's colour away from the cloth, is the limb's
+    own colour. The painted ones are flagged, and no other Gaussian; with the cloth in the sleeve's
+    colour nothing is."""
+    from reconstruct.avatar.limbs_over_cloth import OverClothConfig, model_limbs_over_cloth
+    from reconstruct.body.parts import PART_INDEX
+
+    m, N, M, arm, colours, sleeve, front, cam, means, target, towards = _arm_over_the_layer(layered)
+    left = np.isin(m.parts()[:N], [PART_INDEX[p] for p in ("upperarm.L", "lowerarm.L", "hand.L")])
+    centre = means[:N][left].mean(0)
+    means[:N][left] = target + 0.05 * towards + 0.25 * (means[:N][left] - centre)
+    seen = np.ones(N + M, bool)
+    seen[N:] = front
+    with torch.no_grad():
+        m.layer_opacity.fill_(1.0)
+    config = OverClothConfig(k=3, k_cloth=2, reach=0.04, max_share=1.0)
+    views = [(cam, means)]
+    uv, depth = cam.project(means)
+    luv = uv[N:][front]
+    over = np.array([np.sum(np.linalg.norm(luv - p, axis=1) <= 0.04 * cam.fx / d) >= 2
+                     for p, d in zip(uv[:N], depth[:N])]) & arm
+    assert over.sum() >= 3 and not over[arm & ~left].any(), over.sum()
+    paint = colours.copy()
+    paint[:N][over] = colours[N:][front].mean(0)
+    flags = model_limbs_over_cloth(m, torch.as_tensor(seen), torch.as_tensor(paint), views, config)
+    assert flags.shape == (N + M,) and not flags[N:].any()
+    assert np.array_equal(flags[:N], over)
+    paint[N:] = sleeve
+    assert not model_limbs_over_cloth(m, torch.as_tensor(seen), torch.as_tensor(paint), views, config).any()
+
+
+@pytest.mark.parametrize("rule,on_layer,said", [
+    ("layer_behind_limbs", True, "4 garment-layer Gaussians behind an arm or a hand"),
+    ("limbs_over_cloth", False, "4 arm and hand Gaussians by the garment layer"),
+])
+def test_finish_hands_the_fill_what_an_arm_rule_flags(layered, monkeypatch, rule, on_layer, said):
+    """Stage I's finish hands the fill the Gaussians an arm rule flags and says how many in its
+    note: ``layer_behind_limbs`` (the layer's behind an arm) as unseen, ``limbs_over_cloth`` (the
+    arm's by the cloth) as seen but no colour source. With the setting off they are seen sources."""
+    import dataclasses
+
+    from reconstruct.avatar.layer_through import ARM_PARTS
+    from reconstruct.body.parts import PART_INDEX
     from reconstruct.train import plan as plan_module
 
     t = layered
@@ -862,26 +904,36 @@ def test_finish_unsees_the_layer_behind_a_limb_before_the_fill(layered, monkeypa
         t.step()
     N = t.model.num_body
     flagged = torch.zeros(t.model.num_gaussians, dtype=torch.bool)
-    seen_layer = torch.nonzero(t.state.seen[N:]).squeeze(1)
-    assert len(seen_layer) >= 4
-    flagged[N + seen_layer[:4]] = True
-    monkeypatch.setattr(plan_module, "layer_behind_limbs", lambda state, data, **kw: flagged.clone())
+    monkeypatch.setattr(plan_module, rule, lambda state, data, **kw: flagged.clone())
     handed = []
     real = plan_module.fill_unseen_colors
-    monkeypatch.setattr(plan_module, "fill_unseen_colors",
-                        lambda state, **kw: handed.append(state.seen.clone()) or real(state, **kw))
-    import dataclasses
+    def fill(state, **kw):
+        off = kw.get("not_sources")
+        handed.append((state.seen.clone(), torch.zeros_like(state.seen) if off is None else torch.as_tensor(off)))
+        return real(state, **kw)
 
+    monkeypatch.setattr(plan_module, "fill_unseen_colors", fill)
     before = t.state.seen.clone()
-    t.plan.settings = dataclasses.replace(t.plan.settings, layer_behind_limbs=False)
+    t.plan.settings = dataclasses.replace(t.plan.settings, **{rule: False})
     t.plan.finish(t)
-    off_seen = handed[-1][flagged].clone()
+    # four the fill gets as seen with the setting off
+    seen, not_sources = handed[-1]
+    if on_layer:
+        pick = N + torch.nonzero(seen[N:]).squeeze(1)
+    else:
+        arm = torch.as_tensor(np.isin(t.model.parts()[:N], [PART_INDEX[p] for p in ARM_PARTS]))
+        pick = torch.nonzero(seen[:N] & ~not_sources[:N] & arm).squeeze(1)
+    assert len(pick) >= 4
+    flagged[pick[:4]] = True
     t.state.seen.copy_(before)
-    t.plan.settings = dataclasses.replace(t.plan.settings, layer_behind_limbs=True)
+    t.plan.settings = dataclasses.replace(t.plan.settings, **{rule: True})
     note = t.plan.finish(t)
-    assert not bool(handed[-1][flagged].any())
-    assert "4 garment-layer Gaussians behind an arm or a hand" in note
-    assert bool(off_seen.any())
+    seen, not_sources = handed[-1]
+    if on_layer:
+        assert not bool(seen[flagged].any())
+    else:
+        assert bool(seen[flagged].all()) and bool(not_sources[flagged].all())
+    assert said in note
 
 
 def test_layer_faced_training_is_the_front_of_the_tube_for_a_front_camera(layered):

@@ -253,19 +253,8 @@ def layer_shows_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, bo
     local = _local_median(np.asarray(layer_colors, np.float64), layer_seen, index, cfg.window)
     bcol = np.asarray(body_colors, np.float64)[arms]
     cand = np.flatnonzero(layer_seen)
-    arm = np.full((len(cand), 3), np.nan)  # the arm's colour round each seen layer Gaussian, in some view
-    for camera, body_means, layer_means in views:
-        buv, bz = camera.project(np.asarray(body_means, np.float64)[arms])
-        front = bz > 0
-        if front.sum() < cfg.k:
-            continue
-        tree = cKDTree(buv[front])
-        luv, lz = camera.project(np.asarray(layer_means, np.float64)[cand])
-        todo = np.flatnonzero((lz > 0) & np.isnan(arm[:, 0]))
-        radius = cfg.reach * camera.fx / lz[todo]  # pixels
-        for j, near in zip(todo, tree.query_ball_point(luv[todo], radius)):
-            if len(near) >= cfg.k:
-                arm[j] = np.median(bcol[front][near], axis=0)
+    # the arm's colour round each seen layer Gaussian, in some view
+    arm = median_colour_within(views, (1, arms), bcol, (2, cand), cfg.reach, cfg.k)
     by_arm = np.isfinite(arm[:, 0])
     if not by_arm.any() or (~by_arm).sum() < cfg.k:
         return out
@@ -344,6 +333,33 @@ def layer_behind_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, b
     return out
 
 
+def median_colour_within(views, src: tuple[int, np.ndarray], src_colors: np.ndarray, dst: tuple[int, np.ndarray],
+                         reach: float, k: int) -> np.ndarray:
+    """(len(dst ids), 3): for each destination Gaussian, the median colour of the source Gaussians
+    within ``reach`` metres of it in the image plane (at the destination's depth) in the first of
+    ``views`` where at least ``k`` lie there; NaN where none does. ``views``: (camera, body_means,
+    layer_means); ``src`` / ``dst``: (which means of a view, 1 the body's or 2 the layer's; ids into
+    them); ``src_colors``: the sources' colours. A view with fewer than ``k`` sources in front of
+    its camera is passed over."""
+    (si, sids), (di, dids) = src, dst
+    out = np.full((len(dids), 3), np.nan)
+    for view in views:
+        camera = view[0]
+        suv, sz = camera.project(np.asarray(view[si], np.float64)[sids])
+        front = sz > 0
+        if front.sum() < k:
+            continue
+        tree = cKDTree(suv[front])
+        colours = src_colors[front]
+        duv, dz = camera.project(np.asarray(view[di], np.float64)[dids])
+        todo = np.flatnonzero((dz > 0) & np.isnan(out[:, 0]))
+        radius = reach * camera.fx / dz[todo]  # pixels
+        for j, near in zip(todo, tree.query_ball_point(duv[todo], radius)):
+            if len(near) >= k:
+                out[j] = np.median(colours[near], axis=0)
+    return out
+
+
 def opponent(colors: np.ndarray, luminance_weight: float = 0.5) -> np.ndarray:
     """RGB colours (..., 3) in an opponent space: (r - g, g - b, ``luminance_weight`` times the mean
     brightness)."""
@@ -400,8 +416,7 @@ def model_layer_shows_limbs(model, seen, colors, views, config: LimbConfig = Lim
     training frames. None without a layer."""
     if model.layer is None or model.num_layer == 0:
         return None
-    N, col, seen, split = _split_views(model, seen, colors, views)
-    opacity = model.opacities().detach().cpu().double().numpy()[N:]
+    N, col, seen, split, opacity = _split_views(model, seen, colors, views)
     return _on_layer(layer_shows_limbs(split, model.parts()[:N], col[:N], seen[:N], col[N:], seen[N:],
                                        model.layer_rc.cpu().numpy(), model.layer.grid_shape, opacity, config), N)
 
@@ -411,17 +426,18 @@ def model_layer_behind_limbs(model, seen, colors, views, config: BehindConfig = 
     ``model_layer_shows_limbs``."""
     if model.layer is None or model.num_layer == 0:
         return None
-    N, col, seen, split = _split_views(model, seen, colors, views)
+    N, col, seen, split, _ = _split_views(model, seen, colors, views)
     return _on_layer(layer_behind_limbs(split, model.parts()[:N], col[:N], seen[:N], col[N:], seen[N:],
                                         model.layer_rc.cpu().numpy(), config), N)
 
 
 def _split_views(model, seen, colors, views):
-    """The model-level calls' inputs: the body's count N, the colours and seen flags as arrays, and
-    each view's posed means split into the body's and the layer's."""
+    """The model-level calls' inputs: the body's count N, the colours and seen flags as arrays, each
+    view's posed means split into the body's and the layer's, and the layer's opacities."""
     N = model.num_body
     split = [(cam, np.asarray(means)[:N], np.asarray(means)[N:]) for cam, means in views]
-    return N, np.asarray(colors, np.float64), np.asarray(seen, bool), split
+    opacity = model.opacities().detach().cpu().double().numpy()[N:]
+    return N, np.asarray(colors, np.float64), np.asarray(seen, bool), split, opacity
 
 
 def _on_layer(flags: np.ndarray, num_body: int) -> np.ndarray:

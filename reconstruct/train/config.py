@@ -128,6 +128,11 @@ class Stage1Config(StageSettings):
     # one) are unseen: the fill gives them the cloth's colour. As the arm's colour they showed on
     # the garment's side as light patches (avatar/layer_through.py, "Behind an arm")
     layer_behind_limbs: bool = True
+    # ... and the seen arm and hand Gaussians that lie by the layer in a training frame and took the
+    # cloth's colour (a fitted hand larger than the photo's, or off it, on a skirt) are no colour
+    # source for the limb's unseen side: the palms and backs of the hands took the cloth's grey
+    # (avatar/limbs_over_cloth.py)
+    limbs_over_cloth: bool = True
     # ... and the seen layer Gaussians whose surface faced no training camera in any frame were
     # seen from inside the garment (through a coat's open front, the inside of its back): their one
     # colour is the lining's, and from behind it showed on the outside as a dark patch (coat seed
@@ -207,7 +212,8 @@ class Stage1Config(StageSettings):
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False, lambda_normal_prior=0.0,
                     seen_on_person=False, seen_min_weight=None, layer_off_person=False, layer_through=False,
-                    layer_behind_limbs=False, layer_seen_inside=False, layer_depth_match=False, seen_trained_only=False,
+                    layer_behind_limbs=False, limbs_over_cloth=False, layer_seen_inside=False, layer_depth_match=False,
+                    seen_trained_only=False,
                     random_background=False,
                     avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
@@ -227,6 +233,7 @@ class Stage1Config(StageSettings):
         d.setdefault("layer_off_person", False)  # recorded before the layer's fill left off-person Gaussians empty
         d.setdefault("layer_through", False)  # recorded before the layer's fill told the body through it from cloth
         d.setdefault("layer_behind_limbs", False)  # recorded before layer Gaussians behind an arm took the cloth's colour
+        d.setdefault("limbs_over_cloth", False)  # recorded before arm Gaussians by the layer in its colour were no source
         d.setdefault("layer_seen_inside", False)  # recorded before layer Gaussians seen from inside were unseen
         d.setdefault("layer_depth_match", False)  # recorded before the layer's front and back matched its sides' depth
         d.setdefault("seen_trained_only", False)  # recorded before seen Gaussians training never coloured were unseen

@@ -17,7 +17,7 @@ from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, hair_views_of,
                           layer_behind_limbs, layer_reached, layer_through, layer_training_views, limb_views,
-                          occluded_colors_of)
+                          limbs_over_cloth, occluded_colors_of)
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
 # which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its
@@ -135,7 +135,8 @@ class Stage1Plan(StagePlan):
                     ring_trained = torch.cat([torch.ones(state.model.num_body, dtype=torch.bool), shaped.cpu().bool()])
                 empty = views.get("off_person")
                 # the training frames the arm rules read, posed once for both
-                arms = limb_views(state, context.data) if s.layer_through or s.layer_behind_limbs else None
+                arms = (limb_views(state, context.data)
+                        if s.layer_through or s.layer_behind_limbs or s.limbs_over_cloth else None)
                 if s.layer_through:  # no colour source for the layer's unseen side
                     through = layer_through(state, context.data, views=arms)
                     if through is not None and through.any():
@@ -148,6 +149,12 @@ class Stage1Plan(StagePlan):
                         state.seen &= ~behind.to(state.seen.device)
                         notes.append(f"{int(behind.sum())} garment-layer Gaussians behind an arm or a hand drew it: "
                                      "they are unseen, filled like the cloth")
+                if s.limbs_over_cloth:  # they drew the cloth behind them: no colour source for the limb's unseen side
+                    over = limbs_over_cloth(state, context.data, views=arms)
+                    if over is not None and over.any():
+                        notes.append(f"{int(over.sum())} arm and hand Gaussians by the garment layer drew its cloth: "
+                                     "no colour source for the limb's unseen side")
+                        not_sources = over if not_sources is None else not_sources | over
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
                                    not_sources=not_sources, ring_trained=ring_trained,

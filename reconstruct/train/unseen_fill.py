@@ -52,6 +52,7 @@ from ..appearance.wrap_fill import WrapFillConfig, long_hair_colors, wrap_fill_c
 from ..avatar.garment_layer import spread_frames
 from ..avatar.layer_cover import model_body_under_layer
 from ..avatar.layer_through import model_layer_behind_limbs, model_layer_shows_body, model_layer_shows_limbs
+from ..avatar.limbs_over_cloth import model_limbs_over_cloth
 
 if TYPE_CHECKING:
     from ..avatar.state import AvatarState
@@ -189,7 +190,8 @@ def occluded_colors_of(state: AvatarState, data: TrainingData, *,
 @torch.no_grad()
 def limb_views(state: AvatarState, data: TrainingData, max_frames: int = 8) -> list:
     """(camera, posed means (N+M,3) float64) of up to ``max_frames`` training frames spread over the
-    sequence: what the garment layer's arm rules (``layer_through``, ``layer_behind_limbs``) read."""
+    sequence: what the garment layer's arm rules (``layer_through``, ``layer_behind_limbs``,
+    ``limbs_over_cloth``) read."""
     with torch.no_grad():
         return [(data.targets[i].camera, state.posed(i).means.detach().cpu().double().numpy())
                 for i in spread_frames(list(data.frames), max_frames)]
@@ -220,13 +222,28 @@ def layer_behind_limbs(state: AvatarState, data: TrainingData, max_frames: int =
     ``max_frames`` of the training frames (or their ``limb_views``) and took its colour
     (``avatar.layer_through``, "Behind an arm"); from the painted seen flags and the canonical
     colours. None without a layer."""
+    return _arm_rule(model_layer_behind_limbs, state, data, max_frames, views)
+
+
+def limbs_over_cloth(state: AvatarState, data: TrainingData, max_frames: int = 8,
+                     views: list | None = None) -> torch.Tensor | None:
+    """(N+M,) bool: the seen arm and hand Gaussians that lie by the garment layer in one of up to
+    ``max_frames`` of the training frames (or their ``limb_views``) and took the cloth's colour
+    (``avatar.limbs_over_cloth``); from the painted seen flags and the canonical colours. None
+    without a layer."""
+    return _arm_rule(model_limbs_over_cloth, state, data, max_frames, views)
+
+
+def _arm_rule(rule, state: AvatarState, data: TrainingData, max_frames: int, views: list | None):
+    """``rule(model, seen, colors, views)`` (a model-level arm rule) on the painted seen flags, the
+    canonical colours and the training frames' ``limb_views``, as a tensor; None without a layer."""
     model = state.model
     if model.layer is None or model.num_layer == 0 or not len(data.frames):
         return None
     seen = state.edits.paint(state.seen).cpu().bool()
     colors = model.canonical(None).colors.detach().cpu()
     views = limb_views(state, data, max_frames) if views is None else views
-    return torch.as_tensor(model_layer_behind_limbs(model, seen, colors, views))
+    return torch.as_tensor(rule(model, seen, colors, views))
 
 
 # layer opacities are set this far inside (0, 1) so that their logits stay finite
