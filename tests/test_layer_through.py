@@ -286,3 +286,32 @@ def test_the_layer_in_front_of_an_arm_or_out_of_reach_is_not_behind_it():
     assert not _behind(cam, pos, rc, seen, col, arm, parts, arm_col, depth_gap=gap).any()
     # unseen layer Gaussians are never flagged
     assert not _behind(cam, pos, rc, seen & ~painted, col, arm, parts, arm_col)[painted].any()
+
+
+def test_median_colour_within_matches_a_direct_search():
+    """``median_colour_within`` against a brute-force search: per destination, the first view in
+    which at least k sources lie within reach (metres at the destination's depth) in the image, and
+    the median of their colours; NaN where no view has k."""
+    from reconstruct.avatar.layer_through import median_colour_within
+    from reconstruct.camera import Camera
+
+    rng = np.random.default_rng(7)
+    cams = [Camera.look_at((0.0, -3.0, 0.0), (0.0, 0.0, 0.0), width=128, height=128, fov_y_deg=30),
+            Camera.look_at((3.0, 0.0, 0.0), (0.0, 0.0, 0.0), width=128, height=128, fov_y_deg=30)]
+    body, layer = rng.uniform(-0.3, 0.3, (60, 3)), rng.uniform(-0.3, 0.3, (200, 3))
+    colours = rng.uniform(0, 1, (200, 3))
+    src, dst = np.arange(0, 200, 2), np.arange(60)
+    views = [(cam, body, layer) for cam in cams]
+    reach, k = 0.05, 3
+    got = median_colour_within(views, (2, src), colours[src], (1, dst), reach, k)
+    want = np.full((len(dst), 3), np.nan)
+    for j, d in enumerate(dst):
+        for cam in cams:
+            duv, dz = cam.project(body[d:d + 1])
+            suv, _ = cam.project(layer[src])
+            near = np.linalg.norm(suv - duv, axis=1) <= reach * cam.fx / dz[0]
+            if near.sum() >= k:
+                want[j] = np.median(colours[src][near], axis=0)
+                break
+    assert np.isfinite(want[:, 0]).sum() >= 10 and np.isnan(want[:, 0]).sum() >= 5
+    assert np.allclose(got, want, equal_nan=True)
