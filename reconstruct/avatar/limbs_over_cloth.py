@@ -57,7 +57,7 @@ class OverClothConfig:
 def limbs_over_cloth(views, body_parts: np.ndarray, body_colors: np.ndarray, body_seen: np.ndarray,
                      layer_colors: np.ndarray, layer_seen: np.ndarray, layer_opacity: np.ndarray | None = None,
                      config: OverClothConfig = OverClothConfig()) -> np.ndarray:
-    """(N,) bool over the body's Gaussians: the seen arm and hand Gaussians that lie over the garment
+    """(N,) bool over the body's Gaussians: the seen arm and hand Gaussians that lie by the garment
     layer in some training frame and took the cloth's colour (module docstring). ``views``: (camera,
     body_means (N,3), layer_means (M,3)) of the training frames, posed."""
     cfg = config
