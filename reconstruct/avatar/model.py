@@ -496,7 +496,7 @@ class AvatarModel(nn.Module):
             return out
 
     def pose(self, canon: CanonicalGaussians, pose_transforms: torch.Tensor) -> PosedGaussians:
-        if canon.index is not None and bool((canon.index >= self.num_body).any()):
+        if canon.index is not None and self._holds_layer(canon):
             # a subset's matrices lack the body Gaussians the layer is kept clear of and the rest of
             # the layer's grid, whose stretch sizes its discs: all N+M hold them
             full = self.lbs_matrices(pose_transforms)
@@ -515,8 +515,8 @@ class AvatarModel(nn.Module):
         column at each of its Gaussians, from the LBS ``matrices`` of all N+M Gaussians
         (``lbs_matrices``): the built grid posed, its steps (``garment_layer.grid_steps``) over the
         canonical ones, over ``garment_stretch_slack``, from 1 (never shrunk) to
-        ``garment_max_stretch``; no gradient. None
-        without a layer or with ``garment_stretch_scales`` off."""
+        ``garment_max_stretch``; no gradient. None without a layer or with ``garment_stretch_scales``
+        off."""
         if self.layer is None or self.num_layer == 0 or not self.config.garment_stretch_scales:
             return None
         nb = self.num_body
@@ -526,10 +526,12 @@ class AvatarModel(nn.Module):
             ratio = posed / self.texel_steps[nb:].to(posed).clamp_min(1e-9) / float(self.config.garment_stretch_slack)
             return ratio.clamp(1.0, float(self.config.garment_max_stretch))
 
+    def _holds_layer(self, canon: CanonicalGaussians) -> bool:
+        """Whether ``canon`` holds garment-layer Gaussians: all of the model's, or a subset with some."""
+        return self.layer is not None and (canon.index is None or bool((canon.index >= self.num_body).any()))
+
     def _clears(self, canon: CanonicalGaussians) -> bool:
-        if self.layer is None or self.config.garment_clearance <= 0:
-            return False
-        return canon.index is None or bool((canon.index >= self.num_body).any())
+        return self.config.garment_clearance > 0 and self._holds_layer(canon)
 
     def pose_with(self, canon: CanonicalGaussians, matrices: torch.Tensor,
                   clearance: torch.Tensor | None = None, stretch: torch.Tensor | None = None) -> PosedGaussians:
@@ -555,29 +557,28 @@ class AvatarModel(nn.Module):
     def _stretched(self, canon: CanonicalGaussians, matrices: torch.Tensor,
                    stretch: torch.Tensor | None) -> CanonicalGaussians:
         """``canon`` with its garment-layer discs' in-plane scales times the pose's stretch."""
-        nb = self.num_body
-        if (canon.tangents is None or self.layer is None or not self.config.garment_stretch_scales
-                or (canon.index is not None and not bool((canon.index >= nb).any()))):
+        if canon.tangents is None or not self.config.garment_stretch_scales or not self._holds_layer(canon):
             return canon
         if stretch is None:
             if canon.index is not None:
                 raise ValueError("pose_with: a subset with garment-layer Gaussians needs the layer's stretch "
                                  "from the matrices of all Gaussians (layer_stretch_of)")
             stretch = self.layer_stretch_of(matrices)
-        rows = self._layer_rows(canon, canon.scales)
+        nb = self.num_body
+        rows = self._layer_rows(canon)
         layer_ids = rows - nb if canon.index is None else canon.index[rows] - nb
         factor = torch.ones_like(canon.scales)
         factor[rows, :2] = stretch[layer_ids].to(factor)
         return dataclasses.replace(canon, scales=canon.scales * factor)
 
-    def _layer_rows(self, canon: CanonicalGaussians, like: torch.Tensor) -> torch.Tensor:
-        """The rows of ``canon`` (and of ``like``, one row per Gaussian) that are garment-layer Gaussians."""
+    def _layer_rows(self, canon: CanonicalGaussians) -> torch.Tensor:
+        """The rows of ``canon`` that are garment-layer Gaussians."""
         nb = self.num_body
-        return (torch.arange(nb, len(like), device=like.device) if canon.index is None
+        return (torch.arange(nb, len(canon.means), device=canon.means.device) if canon.index is None
                 else torch.nonzero(canon.index >= nb)[:, 0])
 
     def _clear_layer(self, canon: CanonicalGaussians, means: torch.Tensor, clearance: torch.Tensor) -> torch.Tensor:
-        rows = self._layer_rows(canon, means)
+        rows = self._layer_rows(canon)
         ids = self.layer_clear_ids
         points = apply_points(clearance, self.base_positions[ids].to(clearance))
         normals = lambda j: apply_normals(clearance[j], self.base_normals[ids[j]].to(clearance))  # noqa: E731

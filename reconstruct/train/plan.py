@@ -134,7 +134,7 @@ class Stage1Plan(StagePlan):
                     shaped = faced | layer_reached(state, coverage.total_max, _RING_MIN_REACH)
                     ring_trained = torch.cat([torch.ones(state.model.num_body, dtype=torch.bool), shaped.cpu().bool()])
                 empty = views.get("off_person")
-                # the training frames the three arm rules read, posed once for all
+                # the training frames the three arm rules read, posed once for all, and the colours
                 arms = (limb_views(state, context.data)
                         if s.layer_through or s.layer_behind_limbs or s.limbs_over_cloth else None)
                 if s.layer_through:  # no colour source for the layer's unseen side

@@ -39,6 +39,8 @@ seen Gaussians, so the fill changes where Stage II starts, not where it is pulle
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -187,37 +189,45 @@ def occluded_colors_of(state: AvatarState, data: TrainingData, *,
     return torch.as_tensor(occluded_colors(state.model.parts(), views(), part_names=parts))
 
 
+@dataclass(frozen=True)
+class LimbViews:
+    """What the garment layer's arm rules (``layer_through``, ``layer_behind_limbs``,
+    ``limbs_over_cloth``) read, made once for all three: the training frames posed, and the
+    canonical colours (which the rules do not change; the seen flags they do, so those are read by
+    each rule)."""
+    frames: list  # (camera, posed means (N+M,3) float64) of the training frames read
+    colors: torch.Tensor  # (N+M,3) canonical colours, on the CPU
+
+
 @torch.no_grad()
-def limb_views(state: AvatarState, data: TrainingData, max_frames: int = 8) -> list:
-    """(camera, posed means (N+M,3) float64) of up to ``max_frames`` training frames spread over the
-    sequence: what the garment layer's arm rules (``layer_through``, ``layer_behind_limbs``,
-    ``limbs_over_cloth``) read."""
-    with torch.no_grad():
-        return [(data.targets[i].camera, state.posed(i).means.detach().cpu().double().numpy())
-                for i in spread_frames(list(data.frames), max_frames)]
+def limb_views(state: AvatarState, data: TrainingData, max_frames: int = 8) -> LimbViews:
+    """``LimbViews`` of up to ``max_frames`` training frames spread over the sequence."""
+    frames = [(data.targets[i].camera, state.posed(i).means.detach().cpu().double().numpy())
+              for i in spread_frames(list(data.frames), max_frames)]
+    return LimbViews(frames, state.model.canonical(None).colors.detach().cpu())
 
 
 def layer_through(state: AvatarState, data: TrainingData | None = None, max_frames: int = 8,
-                  views: list | None = None) -> torch.Tensor | None:
+                  views: LimbViews | None = None) -> torch.Tensor | None:
     """(N+M,) bool: the seen garment-layer Gaussians that show the body, not cloth
     (``avatar.layer_through``): under its hem, and, given the training ``data`` (or their
     ``limb_views``), in front of an arm or a hand in up to ``max_frames`` of its frames; from the
     painted seen flags and the canonical colours. None without a layer."""
     model = state.model
-    seen = state.edits.paint(state.seen).cpu().bool()
-    colors = model.canonical(None).colors.detach().cpu()
-    flags = model_layer_shows_body(model, seen, colors)
-    if flags is None:
+    if model.layer is None or model.num_layer == 0:
         return None
     if views is None and data is not None and len(data.frames):
         views = limb_views(state, data, max_frames)
-    if views:
-        flags = flags | model_layer_shows_limbs(model, seen, colors, views)
+    seen = state.edits.paint(state.seen).cpu().bool()
+    colors = model.canonical(None).colors.detach().cpu() if views is None else views.colors
+    flags = model_layer_shows_body(model, seen, colors)
+    if views is not None and views.frames:
+        flags = flags | model_layer_shows_limbs(model, seen, colors, views.frames)
     return torch.as_tensor(flags)
 
 
 def layer_behind_limbs(state: AvatarState, data: TrainingData, max_frames: int = 8,
-                       views: list | None = None) -> torch.Tensor | None:
+                       views: LimbViews | None = None) -> torch.Tensor | None:
     """(N+M,) bool: the seen garment-layer Gaussians that lie behind an arm or a hand in one of up to
     ``max_frames`` of the training frames (or their ``limb_views``) and took its colour
     (``avatar.layer_through``, "Behind an arm"); from the painted seen flags and the canonical
@@ -226,7 +236,7 @@ def layer_behind_limbs(state: AvatarState, data: TrainingData, max_frames: int =
 
 
 def limbs_over_cloth(state: AvatarState, data: TrainingData, max_frames: int = 8,
-                     views: list | None = None) -> torch.Tensor | None:
+                     views: LimbViews | None = None) -> torch.Tensor | None:
     """(N+M,) bool: the seen arm and hand Gaussians that lie by the garment layer in one of up to
     ``max_frames`` of the training frames (or their ``limb_views``) and took the cloth's colour
     (``avatar.limbs_over_cloth``); from the painted seen flags and the canonical colours. None
@@ -234,16 +244,15 @@ def limbs_over_cloth(state: AvatarState, data: TrainingData, max_frames: int = 8
     return _arm_rule(model_limbs_over_cloth, state, data, max_frames, views)
 
 
-def _arm_rule(rule, state: AvatarState, data: TrainingData, max_frames: int, views: list | None):
-    """``rule(model, seen, colors, views)`` (a model-level arm rule) on the painted seen flags, the
-    canonical colours and the training frames' ``limb_views``, as a tensor; None without a layer."""
+def _arm_rule(rule, state: AvatarState, data: TrainingData, max_frames: int, views: LimbViews | None):
+    """``rule(model, seen, colors, frames)`` (a model-level arm rule) on the painted seen flags and
+    the training frames' ``limb_views``, as a tensor; None without a layer."""
     model = state.model
     if model.layer is None or model.num_layer == 0 or not len(data.frames):
         return None
-    seen = state.edits.paint(state.seen).cpu().bool()
-    colors = model.canonical(None).colors.detach().cpu()
     views = limb_views(state, data, max_frames) if views is None else views
-    return torch.as_tensor(rule(model, seen, colors, views))
+    seen = state.edits.paint(state.seen).cpu().bool()
+    return torch.as_tensor(rule(model, seen, views.colors, views.frames))
 
 
 # layer opacities are set this far inside (0, 1) so that their logits stay finite
