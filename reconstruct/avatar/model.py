@@ -167,6 +167,9 @@ class AvatarModel(nn.Module):
             self.layer_features = nn.Parameter(torch.randn(1, C, *nodes.shape) * config.feature_init_std)
             logit = math.log(config.garment_opacity_init / (1 - config.garment_opacity_init))
             self.layer_opacity = nn.Parameter(torch.full((layer.num_gaussians,), logit / config.garment_opacity_gain))
+            # (M,) layer Gaussians taken out of the garment for good (``trim_layer``: under the hem,
+            # where the layer drew the legs): opacity 0 whatever their parameter, no gradient
+            self.register_buffer("layer_trimmed", torch.zeros(layer.num_gaussians, dtype=torch.bool))
             rc = torch.stack(torch.meshgrid(torch.arange(rows), torch.arange(cols), indexing="ij"), -1).reshape(-1, 2)
             self.register_buffer("layer_rc", rc, persistent=False)  # (M,2) row, column of each grid point
             node_rc = torch.as_tensor(nodes.grid_rc)
@@ -356,7 +359,7 @@ class AvatarModel(nn.Module):
         None without a layer (every Gaussian opaque)."""
         if self.layer is None:
             return None
-        layer = torch.sigmoid(self.config.garment_opacity_gain * self.layer_opacity)
+        layer = torch.sigmoid(self.config.garment_opacity_gain * self.layer_opacity).masked_fill(self.layer_trimmed, 0.0)
         full = torch.cat([torch.ones(self.num_body, dtype=layer.dtype, device=layer.device), layer])
         return full if index is None else full[index]
 
@@ -602,6 +605,19 @@ class AvatarModel(nn.Module):
         opacities = (torch.ones(n, dtype=means.dtype, device=means.device) if canon.opacities is None
                      else canon.opacities)
         return PosedGaussians(means, normals, canon.colors, canon.scales, quats, opacities)
+
+    @torch.no_grad()
+    def trim_layer(self, flags) -> int:
+        """Take the garment layer's Gaussians ``flags`` ((M,) bool) out of the garment for good: their
+        opacity is 0 from now on (``opacities``), in this stage and the next, and in checkpoints.
+        Returns how many were not trimmed before."""
+        flags = torch.as_tensor(flags, dtype=torch.bool, device=self.layer_trimmed.device)
+        if flags.shape != self.layer_trimmed.shape:
+            raise ValueError(f"trim_layer: flags must have shape {tuple(self.layer_trimmed.shape)}, "
+                             f"found {tuple(flags.shape)}")
+        new = int((flags & ~self.layer_trimmed).sum())
+        self.layer_trimmed |= flags
+        return new
 
     @torch.no_grad()
     def move_layer(self, delta: torch.Tensor) -> None:

@@ -274,6 +274,8 @@ class AvatarState:
         if self.model.layer is not None and "layer_skin_logit" not in model_state:
             # saved before the layer's skinning was learned: the built weights, i.e. zero factors
             model_state["layer_skin_logit"] = torch.zeros_like(self.model.layer_skin_logit)
+        if self.model.layer is not None and "layer_trimmed" not in model_state:
+            model_state["layer_trimmed"] = torch.zeros_like(self.model.layer_trimmed)  # saved before trimming existed
         self.model.load_state_dict(model_state)
         with torch.no_grad():
             self.pose_delta.copy_(state["pose_delta"])

@@ -133,6 +133,12 @@ class Stage1Config(StageSettings):
     # source for the limb's unseen side: the palms and backs of the hands took the cloth's grey
     # (avatar/limbs_over_cloth.py)
     limbs_over_cloth: bool = True
+    # at these fractions of the stage, the seen layer Gaussians under the hem whose colour is the
+    # body's just under it (the hem rule of layer_through: the layer reached past the garment's
+    # hem and drew the legs) are trimmed off the layer, opacity 0 for good, and the rest of the
+    # stage trains the legs behind them. Left in, they hung a band of the legs' colour from the hem
+    # once the legs moved (train/hem_trim.py). (): never
+    layer_hem_trims: tuple[float, ...] = (0.4, 0.7)
     # ... and the seen layer Gaussians whose surface faced no training camera in any frame were
     # seen from inside the garment (through a coat's open front, the inside of its back): their one
     # colour is the lining's, and from behind it showed on the outside as a dark patch (coat seed
@@ -195,6 +201,9 @@ class Stage1Config(StageSettings):
             raise ValueError(f"lambda_normal_prior must be >= 0, found {self.lambda_normal_prior}")
         if self.seen_min_weight is not None and self.seen_min_weight <= 0:
             raise ValueError(f"seen_min_weight must be > 0 (pixels) or None, found {self.seen_min_weight}")
+        trims = tuple(self.layer_hem_trims)
+        if not all(0 < f < 1 for f in trims) or any(b <= a for a, b in zip(trims, trims[1:])):
+            raise ValueError(f"layer_hem_trims must be increasing fractions of the stage in (0, 1), found {trims}")
         if self.fill_unseen_ring < 0:
             raise ValueError(f"fill_unseen_ring must be >= 0, found {self.fill_unseen_ring}")
         if not 0 <= self.lr_decay_start < 1 or not 0 < self.lr_final <= 1:
@@ -212,8 +221,8 @@ class Stage1Config(StageSettings):
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False, lambda_normal_prior=0.0,
                     seen_on_person=False, seen_min_weight=None, layer_off_person=False, layer_through=False,
-                    layer_behind_limbs=False, limbs_over_cloth=False, layer_seen_inside=False, layer_depth_match=False,
-                    seen_trained_only=False,
+                    layer_behind_limbs=False, limbs_over_cloth=False, layer_hem_trims=(), layer_seen_inside=False,
+                    layer_depth_match=False, seen_trained_only=False,
                     random_background=False,
                     avatar=AvatarConfig.paper())
         return cls(**{**base, **kw})
@@ -234,6 +243,7 @@ class Stage1Config(StageSettings):
         d.setdefault("layer_through", False)  # recorded before the layer's fill told the body through it from cloth
         d.setdefault("layer_behind_limbs", False)  # recorded before layer Gaussians behind an arm took the cloth's colour
         d.setdefault("limbs_over_cloth", False)  # recorded before arm Gaussians by the layer in its colour were no source
+        d.setdefault("layer_hem_trims", ())  # recorded before the layer's hem was trimmed part way through
         d.setdefault("layer_seen_inside", False)  # recorded before layer Gaussians seen from inside were unseen
         d.setdefault("layer_depth_match", False)  # recorded before the layer's front and back matched its sides' depth
         d.setdefault("seen_trained_only", False)  # recorded before seen Gaussians training never coloured were unseen

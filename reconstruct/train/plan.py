@@ -18,6 +18,7 @@ from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, hair_views_of,
                           layer_behind_limbs, layer_reached, layer_through, layer_training_views, limb_views,
                           limbs_over_cloth, occluded_colors_of)
+from .hem_trim import trim_layer_hem
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
 # which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its
@@ -49,6 +50,12 @@ class StagePlan:
         studio (e.g. λ_SDS)."""
         return {}
 
+    def after_step(self, context: StepContext) -> str | None:
+        """Called after every step of the stage but its last (whose act is ``finish``), with the
+        loop: what the plan does to the avatar part way through (Stage I trims the garment layer's
+        hem). Returns a line for the log, or None."""
+        return None
+
     def finish(self, context: StepContext) -> str | None:
         """Called once when the stage has used up its steps or minutes (before the final
         evaluation and checkpoint), with the loop (its avatar state and training frames). Returns
@@ -73,6 +80,26 @@ class Stage1Plan(StagePlan):
     def __init__(self, config: Stage1Config) -> None:
         self.settings = config
         self.steps = {"given": GivenViewStep(config, marks_seen=True, layer_skinning=True)}
+        self._trims_passed: int | None = None  # how many of layer_hem_trims the stage has passed
+
+    def after_step(self, context: StepContext) -> str | None:
+        """At each of ``layer_hem_trims`` of the stage: the seen garment-layer Gaussians under the hem
+        that drew the legs (``layer_through``'s hem rule) are trimmed off the layer for good, and the
+        rest of the stage trains the body under them (``trim_layer_hem``). A run resumed from a
+        checkpoint does not redo the trims its stage had passed."""
+        trims = self.settings.layer_hem_trims
+        if not trims or context.state.model.layer is None:
+            return None
+        p = context.progress
+        if self._trims_passed is None:  # this plan's first step: a resumed stage passed some already
+            self._trims_passed = 0 if context.stage_step <= 1 else sum(f < p for f in trims)
+        trimmed = 0
+        while self._trims_passed < len(trims) and p >= trims[self._trims_passed]:
+            self._trims_passed += 1
+            trimmed += trim_layer_hem(context.state)
+        if not trimmed:
+            return None
+        return f"Stage I: {trimmed} garment-layer Gaussians under the hem drew the legs: trimmed off the layer"
 
     def param_groups(self, state: AvatarState) -> list[dict]:
         c = self.settings

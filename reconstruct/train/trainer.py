@@ -219,7 +219,13 @@ class Trainer:
         dt = time.perf_counter() - t0
         self.elapsed += dt
         self.stage_elapsed += dt
-        if self.done and not was_done:
+        if not self.done:  # the plan's acts within its stage (its clock counts them)
+            t1 = time.perf_counter()
+            note = self.plan.after_step(self)
+            self.elapsed += time.perf_counter() - t1
+            self.stage_elapsed += time.perf_counter() - t1
+            self._plan_note(note)
+        elif not was_done:
             self._finish_stage()
         if not taken:
             return self._skipped_step(kind, outcome)
@@ -237,6 +243,10 @@ class Trainer:
         t0 = time.perf_counter()
         note = self.plan.finish(self)
         self.elapsed += time.perf_counter() - t0
+        self._plan_note(note)
+
+    @staticmethod
+    def _plan_note(note: str | None) -> None:
         if note:
             print(note, file=sys.stderr)
 
