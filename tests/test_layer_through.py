@@ -90,6 +90,30 @@ def test_the_legs_under_the_hem_show_the_body_and_the_top_is_not_read():
     assert not (flags & ~seen).any()
 
 
+def test_legs_that_drew_the_cloth_just_under_the_hem_are_no_reference():
+    """The shins' Gaussians within 5 cm under the layer's bottom row painted the cloth's grey (they
+    drew the hem's pixels): more than half the reference within 25 cm, and read from 2 cm above
+    the bottom row (the settings before) no column is read; from 5 cm down the skin is found."""
+    rng = np.random.default_rng(7)
+    pos, rc = _tube()
+    col, seen, legs, _ = _layer_colours(rng, rc, pos)
+    bp, bparts, bcol, bseen, bhidden = _body(rng)
+    near_hem = (bparts != PART_INDEX["torso"]) & (bp[:, 2] > HEM - 0.05)
+    extra = 400  # more shin Gaussians just under the hem, all in the cloth's grey
+    z = rng.uniform(HEM - 0.05, HEM - 0.005, extra)
+    a = rng.uniform(-np.pi / 2, np.pi / 2, extra)
+    x = np.where(np.arange(extra) % 2 == 0, 0.1, -0.1)
+    bp = np.r_[bp, np.c_[x + 0.06 * np.sin(a), -0.06 * np.cos(a), z]]
+    bparts = np.r_[bparts, np.full(extra, PART_INDEX["shin.L"])]
+    bcol = np.r_[bcol, np.tile([0.5, 0.5, 0.5], (extra, 1))]
+    bcol[np.r_[near_hem, np.zeros(extra, bool)]] = 0.5
+    bseen, bhidden = np.ones(len(bp), bool), np.zeros(len(bp), bool)
+    body = (bp, bparts, bcol, bseen, bhidden)
+    flags = _flags(body, pos, col, seen, rc)
+    assert flags[legs].mean() > 0.8 and not (flags & ~_near(legs, rc)).any()
+    assert not _flags(body, pos, col, seen, rc, edge_slack=0.02, reach=0.25).any()
+
+
 def test_the_walk_from_the_edge_stops_at_the_cloth():
     """Skin-coloured cloth above a cloth hem band (a print over the hem) is not the body: the walk
     from the edge stops at the first cloth in its column. The other columns still find the legs."""
