@@ -164,6 +164,15 @@ def test_stage1_trims_at_its_fractions_once_each_and_the_trims_last(tiny_scene, 
     calls.append("resumed")  # the next trim reads picks[1]
     t2.step()
     assert calls == ["resumed", 4] and torch.equal(t2.model.layer_trimmed, bottom)
+    # a trim the resumed run's first step crosses is done, though that step passes it (at 0.5 of
+    # the stage: a trim at 0.45 was not done before the checkpoint at 0.375)
+    config45 = dataclasses.replace(config, layer_hem_trims=(0.25, 0.45))
+    t4 = Trainer(tiny_scene, config45, None, garment_layer=_layer(body))
+    t4.load_state_dict(state, str(path))
+    current[0] = t4
+    calls[:] = ["resumed"]
+    t4.step()
+    assert calls == ["resumed", 4] and torch.equal(t4.model.layer_trimmed, bottom)
     # a checkpoint from before trimming existed loads with nothing trimmed
     del state["avatar"]["model"]["layer_trimmed"]
     t3 = Trainer(tiny_scene, config, None, garment_layer=_layer(body))

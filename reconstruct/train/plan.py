@@ -13,12 +13,12 @@ import torch
 from .config import Stage1Config, StageSettings
 from ..appearance.wrap_fill import grazing_rule_for
 from ..avatar.layer_depth import match_layer_depth
+from .hem_trim import trim_layer_hem
 from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, hair_views_of,
                           layer_behind_limbs, layer_reached, layer_through, layer_training_views, limb_views,
                           limbs_over_cloth, occluded_colors_of)
-from .hem_trim import trim_layer_hem
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
 # which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its
@@ -86,13 +86,16 @@ class Stage1Plan(StagePlan):
         """At each of ``layer_hem_trims`` of the stage: the seen garment-layer Gaussians under the hem
         that drew the legs (``layer_through``'s hem rule) are trimmed off the layer for good, and the
         rest of the stage trains the body under them (``trim_layer_hem``). A run resumed from a
-        checkpoint does not redo the trims its stage had passed."""
+        checkpoint does not redo the trims its stage had passed by steps."""
         trims = self.settings.layer_hem_trims
         if not trims or context.state.model.layer is None:
             return None
         p = context.progress
-        if self._trims_passed is None:  # this plan's first step: a resumed stage passed some already
-            self._trims_passed = 0 if context.stage_step <= 1 else sum(f < p for f in trims)
+        if self._trims_passed is None:  # this plan's first step: a resumed stage passed some already,
+            # those at or below where its checkpoint stood (by steps: a stage bounded by minutes may
+            # redo one its clock had passed, never skip one)
+            before = self.settings.progress(context.stage_step - 1, 0.0)
+            self._trims_passed = sum(f <= before for f in trims)
         trimmed = 0
         while self._trims_passed < len(trims) and p >= trims[self._trims_passed]:
             self._trims_passed += 1

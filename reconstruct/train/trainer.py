@@ -222,8 +222,9 @@ class Trainer:
         if not self.done:  # the plan's acts within its stage (its clock counts them)
             t1 = time.perf_counter()
             note = self.plan.after_step(self)
-            self.elapsed += time.perf_counter() - t1
-            self.stage_elapsed += time.perf_counter() - t1
+            spent = time.perf_counter() - t1
+            self.elapsed += spent
+            self.stage_elapsed += spent
             self._plan_note(note)
         elif not was_done:
             self._finish_stage()
