@@ -47,7 +47,7 @@ setup_video_venv() {
     && .venv-video/bin/python -m pip install -q "numpy<2" "protobuf>=4.25.3,<5" absl-py "attrs>=19.1" \
          "flatbuffers>=2.0" opencv-contrib-python matplotlib >>.venv-video/install.log 2>&1 \
     || { cat .venv-video/install.log >&2; echo "installing $MEDIAPIPE_PIN into .venv-video failed" >&2; exit 1; }
-  .venv-video/bin/python -c "import mediapipe.python.solutions.pose, mediapipe.python.solutions.selfie_segmentation"
+  .venv-video/bin/python -c "import mediapipe.python.solutions.pose, mediapipe.python.solutions.selfie_segmentation, mediapipe.python.solutions.hands"
   rm -f .venv-video/.installed-*
   touch "$vstamp"
 }

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .hand_crops import NUM_HAND_LANDMARKS
 from .keypoints import LANDMARK_NAMES, NUM_LANDMARKS
 
 WORKER = Path(__file__).with_name("mediapipe_worker.py")
@@ -61,6 +62,10 @@ class Detections:
     # detector unsure; the pipeline sets the visibility of every landmark at such an edge to 0): the
     # fit holds the limbs that end there straight
     cut: np.ndarray | None = None
+    # (T,2,21,2) pixels or None: mediapipe's hand model's 21 landmarks of the person's left and right
+    # hand (``hand_crops.py``), where ``hands_found`` (T,2) says it found that hand; None: no hand model ran
+    hands: np.ndarray | None = None
+    hands_found: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         T = len(self.found)
@@ -77,6 +82,15 @@ class Detections:
         if self.cut is not None and np.shape(self.cut) != (T, NUM_LANDMARKS):
             raise DetectorError(f"detections from {self.source or 'the detector'}: cut has shape "
                                 f"{np.shape(self.cut)}, expected {(T, NUM_LANDMARKS)}")
+        if (self.hands is None) != (self.hands_found is None):
+            raise DetectorError(f"detections from {self.source or 'the detector'}: hands and hands_found come together")
+        if self.hands is not None:
+            if np.shape(self.hands) != (T, 2, NUM_HAND_LANDMARKS, 2) or np.shape(self.hands_found) != (T, 2):
+                raise DetectorError(f"detections from {self.source or 'the detector'}: hands have shape "
+                                    f"{np.shape(self.hands)} and hands_found {np.shape(self.hands_found)}, expected "
+                                    f"{(T, 2, NUM_HAND_LANDMARKS, 2)} and {(T, 2)}")
+            if not np.all(np.isfinite(self.hands)):
+                raise DetectorError(f"detections from {self.source or 'the detector'}: hands have non-finite values")
         if self.masks.ndim != 3 or self.masks.shape[0] != T:
             raise DetectorError(f"detections from {self.source or 'the detector'}: masks have shape "
                                 f"{self.masks.shape}, expected ({T}, H, W)")
@@ -103,7 +117,9 @@ class Detections:
                           self.masks[keep], self.found[keep], self.source, dict(self.info),
                           None if self.raw_masks is None else self.raw_masks[keep],
                           None if self.refine_used is None else self.refine_used[keep],
-                          None if self.cut is None else self.cut[keep])
+                          None if self.cut is None else self.cut[keep],
+                          None if self.hands is None else self.hands[keep],
+                          None if self.hands_found is None else self.hands_found[keep])
 
 
 @dataclass
@@ -174,13 +190,22 @@ def parse_mediapipe_output(path: str | os.PathLike, width: int, height: int) -> 
         if not np.any(world[found]):
             world = None  # the worker got no 3D landmarks
     masks = masks.astype(np.float32) / (255.0 if masks.dtype == np.uint8 else 1.0)
-    raw = used = None
+    raw = used = hands = hands_found = None
     with np.load(path) as z:
         if "raw_masks" in z.files:
             raw = z["raw_masks"].astype(np.float32) / 255.0
             used = z["refine_used"].astype(bool)
+        if "hands" in z.files:
+            hands = z["hands"].astype(np.float64)
+            hands_found = z["hands_found"].astype(bool) if "hands_found" in z.files else None
+            if hands_found is None or hands.shape != (T, 2, NUM_HAND_LANDMARKS, 2):
+                raise DetectorError(f"{path}: hands have shape {hands.shape} (expected ({T}, 2, {NUM_HAND_LANDMARKS}, 2)) "
+                                    f"and hands_found is {'missing' if hands_found is None else hands_found.shape}")
+            hands = hands * np.array([width, height], np.float64)
+            hands_found = hands_found & found[:, None]
     return Detections(keypoints, visibility, world, masks, found, source=f"mediapipe {version}",
-                      info={"mediapipe_version": version}, raw_masks=raw, refine_used=used)
+                      info={"mediapipe_version": version}, raw_masks=raw, refine_used=used, hands=hands,
+                      hands_found=hands_found)
 
 
 def _can_import_mediapipe(python: str) -> tuple[bool, str]:

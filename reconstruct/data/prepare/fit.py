@@ -18,7 +18,8 @@ Losses (all frames at once, Adam):
               held during this stage;
   prior       L2 on the bone rotations (heavier on spine and neck, on the off-axis parts of knees
               and elbows), a penalty on knees and elbows bending backwards; a limb bone whose far-end
-              landmark an edge of the frame cuts off is held near its rest rotation (``w_cut``);
+              landmark an edge of the frame cuts off is held near its rest rotation (``w_cut``), and
+              so is a wrist whose hand has no knuckle landmarks in the frame (``hands.py``);
   smoothness  squared second differences over time of rotations, orientation and translation;
   upright     where one view cannot tell depth (the body barely turns; the person barely moves), a
               prior that keeps the body's up axis vertical and the legs under the hips (no common
@@ -46,7 +47,7 @@ from .shape import ShapeBasis
 from .silhouette import mesh_silhouette
 
 FIT_BONES = ("spine03", "spine01", "neck01", "head", "upperarm01.L", "upperarm01.R", "lowerarm01.L",
-             "lowerarm01.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R")
+             "lowerarm01.R", "wrist.L", "wrist.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R")
 # per-bone prior weight on (x, y, z) of the axis-angle (world-aligned: x is the hinge of knees/elbows)
 # The thighs' turn about the vertical (z: about their own axis while they hang) weighs 40: a straight
 # leg's keypoints do not see it, and at 1 it drifted to 0.4-1.0 rad on five of the seven photos of
@@ -60,8 +61,11 @@ _PRIOR = {"spine03": (40, 40, 40), "spine01": (40, 40, 40), "neck01": (2, 2, 2),
 _HINGE_SIGN = {"lowerleg01.L": 1.0, "lowerleg01.R": 1.0, "lowerarm01.L": -1.0, "lowerarm01.R": -1.0}
 # the landmark at the far end of each limb bone: the bone is held straight in a frame whose edge cuts it off
 _LIMB_ENDS = {"upperarm01.L": "left_elbow", "upperarm01.R": "right_elbow", "lowerarm01.L": "left_wrist",
-              "lowerarm01.R": "right_wrist", "upperleg01.L": "left_knee", "upperleg01.R": "right_knee",
+              "lowerarm01.R": "right_wrist", "wrist.L": "left_index", "wrist.R": "right_index",
+              "upperleg01.L": "left_knee", "upperleg01.R": "right_knee",
               "lowerleg01.L": "left_ankle", "lowerleg01.R": "right_ankle"}
+# the knuckle landmarks that turn each hand (``keypoints.LANDMARK_TARGETS``)
+_KNUCKLES = {"wrist.L": ("left_index", "left_pinky"), "wrist.R": ("right_index", "right_pinky")}
 CAMERA_NAME = "video"
 
 
@@ -308,12 +312,16 @@ class _Problem:
         self.legs = [FIT_BONES.index(n) for n in ("upperleg01.L", "upperleg01.R")]
         self.shins = [FIT_BONES.index(n) for n in ("lowerleg01.L", "lowerleg01.R")]
         # (T,B): the limb bones whose far-end landmark an edge of the frame cuts off, per frame
-        self.held = None
-        if det.cut is not None and np.any(det.cut):
-            held = np.zeros((T, len(FIT_BONES)))
+        # and the wrists of hands without knuckles in a frame (``hands.py`` found none it could take):
+        # nothing but the silhouette sees them, and it turned a hand held at the head up into the hair
+        held = np.zeros((T, len(FIT_BONES)))
+        if det.cut is not None:
             for bone, landmark in _LIMB_ENDS.items():
                 held[:, FIT_BONES.index(bone)] = det.cut[:, LANDMARK_NAMES.index(landmark)]
-            self.held = torch.as_tensor(held, dtype=f64)
+        for bone, knuckles in _KNUCKLES.items():
+            unseen = (det.visibility[:, [LANDMARK_NAMES.index(n) for n in knuckles]] <= 0).all(1)
+            held[:, FIT_BONES.index(bone)] = np.maximum(held[:, FIT_BONES.index(bone)], unseen)
+        self.held = torch.as_tensor(held, dtype=f64) if np.any(held) else None
         if shape is not None:
             if not self.kin.fast:
                 raise ValueError(f"body {body.name!r}: fitting the shape needs the fast kinematics")

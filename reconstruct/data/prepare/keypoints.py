@@ -1,10 +1,14 @@
 """Mediapipe's 33 pose landmarks and where they sit on the body model.
 
-Each landmark used by the fit maps to a bone head of the body (shoulders, elbows, wrists, hips,
-knees, ankles, eyes) or to one mesh vertex found from the rest mesh (nose tip, ears). Hands and feet
-beyond the wrists and ankles are not fitted (their bones are not optimised). Mediapipe's left/right
-are the person's own; Anny's ``.L`` bones are the person's left too (+X, the image's right side when
-the person faces the camera).
+Each landmark used by the fit maps to a bone head of the body (shoulders, elbows, wrists, the index
+and little fingers' knuckles, hips, knees, ankles, eyes) or to one mesh vertex found from the rest
+mesh (nose tip, ears). The ``*_index`` and ``*_pinky`` landmarks are the knuckles where those fingers
+leave the palm (mediapipe's "knuckle #1"), the heads of Anny's ``finger2-1`` and ``finger5-1``; they
+turn the hand at the wrist (``fit.FIT_BONES``). ``prepare`` puts the hand model's knuckles there, or
+leaves them out where it has none (``hands.py``): the pose model's own hand points are too loose.
+The thumb and the fingers beyond the knuckles, and the feet beyond the ankles, are not fitted (their
+bones are not optimised). Mediapipe's left/right are the person's own; Anny's ``.L`` bones are the
+person's left too (+X, the image's right side when the person faces the camera).
 """
 
 from __future__ import annotations
@@ -39,6 +43,11 @@ LANDMARK_TARGETS: dict[str, tuple[str, str, float]] = {
     "right_elbow": ("bone", "lowerarm01.R", 1.0),
     "left_wrist": ("bone", "wrist.L", 1.0),
     "right_wrist": ("bone", "wrist.R", 1.0),
+    # the hand's knuckles (half a limb joint's weight: a hand is small and the hand model can be off)
+    "left_index": ("bone", "finger2-1.L", 0.5),
+    "right_index": ("bone", "finger2-1.R", 0.5),
+    "left_pinky": ("bone", "finger5-1.L", 0.5),
+    "right_pinky": ("bone", "finger5-1.R", 0.5),
     "left_hip": ("bone", "upperleg01.L", 1.0),
     "right_hip": ("bone", "upperleg01.R", 1.0),
     "left_knee": ("bone", "lowerleg01.L", 1.0),

@@ -5,7 +5,10 @@
 IN.npz holds ``images`` (T,H,W,3) uint8 RGB. OUT.npz gets ``found`` (T,) bool, ``landmarks`` (T,33,4)
 (x, y normalised to [0,1] by the image width/height, z relative depth, visibility), ``world``
 (T,33,4) (metres, hip-centred, x right, y down, z away from the camera; visibility), ``masks``
-(T,H,W) uint8 person segmentation (0..255) and ``version`` (the mediapipe version).
+(T,H,W) uint8 person segmentation (0..255) and ``version`` (the mediapipe version). Each hand the
+pose found is looked at again by mediapipe's hand model in a square crop round it (``hand_crops.py``):
+``hands`` (T,2,21,2) its 21 landmarks normalised like ``landmarks`` (the person's left hand first) and
+``hands_found`` (T,2) bool (``--no-hands`` leaves both out).
 
 ``--refine`` also writes ``raw_masks`` and refines ``masks`` with GrabCut (``grabcut_refine.py``, OpenCV)
 seeded by the segmentation and the landmarks; ``refine_used`` (T,) says where the refinement was kept.
@@ -51,6 +54,7 @@ def main(argv=None) -> int:
     ap.add_argument("--refine", action="store_true", help="refine the masks with GrabCut (OpenCV)")
     ap.add_argument("--mode", choices=["pose", "people"], default="pose")
     ap.add_argument("--max-people", type=int, default=6)
+    ap.add_argument("--no-hands", action="store_true", help="do not run the hand model on the pose's hands")
     ap.add_argument("--progress", action="store_true",
                     help="print 'progress STAGE DONE TOTAL' lines on stdout as frames are done")
     args = ap.parse_args(argv)
@@ -92,6 +96,8 @@ def main(argv=None) -> int:
             if result.segmentation_mask is not None:
                 masks[i] = np.clip(result.segmentation_mask * 255.0 + 0.5, 0, 255).astype(np.uint8)
     extra = {}
+    if not args.no_hands:
+        extra["hands"], extra["hands_found"] = detect_hands(images, landmarks, found, args)
     if args.refine:
         _siblings_importable()
         from grabcut_refine import refine_mask
@@ -106,12 +112,55 @@ def main(argv=None) -> int:
             m, info = refine_mask(images[i], raw[i].astype(np.float32) / 255.0, kp, landmarks[i, :, 3])
             masks[i] = np.clip(m * 255.0 + 0.5, 0, 255).astype(np.uint8)
             used[i] = info["used"]
-        extra = {"raw_masks": raw, "refine_used": used}
+        extra.update(raw_masks=raw, refine_used=used)
     tmp = args.out + ".part.npz"
     np.savez(tmp, found=found, landmarks=landmarks, world=world, masks=masks, version=np.array(mp.__version__),
              **extra)
     os.replace(tmp, args.out)
     return 0
+
+
+def detect_hands(images, landmarks, found, args):
+    """(T,2,21,2) normalised hand landmarks and (T,2) bool found: mediapipe's hand model on a square
+    crop round each of the pose's hands (``hand_crops.hand_box``) scaled to ``HAND_INPUT`` px, one hand
+    per crop, each crop on its own (static images: a hand that moves out of a video's frame is not
+    carried on)."""
+    import numpy as np
+    from mediapipe.python.solutions import hands as mp_hands
+
+    _siblings_importable()
+    from hand_crops import HAND_INPUT, HAND_POINTS, NUM_HAND_LANDMARKS, SIDES, crop_square, hand_box, uncrop
+
+    try:
+        import cv2
+
+        def scale(img, size):
+            return cv2.resize(img, (size, size), interpolation=cv2.INTER_CUBIC if size > img.shape[0] else cv2.INTER_AREA)
+    except ImportError:  # nearest neighbour, numpy only
+        def scale(img, size):
+            idx = (np.arange(size) * img.shape[0] / size).astype(int)
+            return img[idx][:, idx]
+
+    T, H, W = images.shape[:3]
+    out = np.zeros((T, 2, NUM_HAND_LANDMARKS, 2), np.float32)
+    hit = np.zeros((T, 2), bool)
+    with mp_hands.Hands(static_image_mode=True, max_num_hands=1, model_complexity=1,
+                        min_detection_confidence=args.min_detection_confidence) as hands:
+        for i in range(T):
+            report(args, "hands", i + 1, T)
+            if not found[i]:
+                continue
+            for k, side in enumerate(SIDES):
+                pts = landmarks[i, list(HAND_POINTS[side]), :2] * np.array([W, H], np.float32)
+                box = hand_box(pts, H)
+                crop = np.ascontiguousarray(scale(crop_square(images[i], box), HAND_INPUT))
+                result = hands.process(crop)
+                if not result.multi_hand_landmarks:
+                    continue
+                lm = np.array([[p.x, p.y] for p in result.multi_hand_landmarks[0].landmark], np.float64)
+                out[i, k] = uncrop(lm, box) / np.array([W, H], np.float64)
+                hit[i, k] = True
+    return out, hit
 
 
 def _siblings_importable() -> None:
