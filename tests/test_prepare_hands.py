@@ -156,6 +156,23 @@ def test_worker_output_with_hands_is_read_in_pixels(tmp_path):
 
 
 # ----- the fit ---------------------------------------------------------------------------------------
+def test_a_video_hand_missed_for_a_few_frames_is_not_held():
+    """A wrist is held at rest only in frames with no knuckles within ``HAND_GAP`` frames: a hand the
+    model misses now and then keeps its turn through the smoothness term."""
+    from reconstruct.data.prepare.fit import HAND_GAP, _hand_unseen
+
+    assert HAND_GAP == 3
+    seen = lambda *frames: np.isin(np.arange(12), frames)[:, None] * np.ones((1, 2))  # noqa: E731
+    np.testing.assert_array_equal(_hand_unseen(seen(0, 2, 4, 6, 8, 10, 11)), np.zeros(12, bool))
+    np.testing.assert_array_equal(np.flatnonzero(_hand_unseen(seen(6, 7))), [0, 1, 2, 11])  # 3-5, 8-10 near
+    np.testing.assert_array_equal(np.flatnonzero(_hand_unseen(seen())), np.arange(12))
+    np.testing.assert_array_equal(_hand_unseen(np.zeros((1, 2))), [True])  # a photo without the hand
+    one_knuckle = np.zeros((3, 2))
+    one_knuckle[1, 0] = 0.7
+    assert not _hand_unseen(one_knuckle).any()
+
+
+
 @pytest.fixture(scope="module")
 def synth():
     from reconstruct.data.synthetic.generator import SyntheticConfig, build_synthetic_scene

@@ -66,6 +66,20 @@ _LIMB_ENDS = {"upperarm01.L": "left_elbow", "upperarm01.R": "right_elbow", "lowe
               "lowerleg01.L": "left_ankle", "lowerleg01.R": "right_ankle"}
 # the knuckle landmarks that turn each hand (``keypoints.LANDMARK_TARGETS``)
 _KNUCKLES = {"wrist.L": ("left_index", "left_pinky"), "wrist.R": ("right_index", "right_pinky")}
+# a video frame whose hand has no knuckles is left to the smoothness term, not held, when a frame this
+# close has them: held there, a hand found in every other frame would jump between its fitted turn and rest
+HAND_GAP = 3
+
+
+def _hand_unseen(vis: np.ndarray, gap: int = HAND_GAP) -> np.ndarray:
+    """(T,) bool: frames whose hand has no knuckles ((T,K) visibility all 0) and no frame within ``gap``
+    that has them."""
+    seen = (np.asarray(vis) > 0).any(1)
+    near = seen.copy()
+    for k in range(1, gap + 1):
+        near[k:] |= seen[:-k]
+        near[:-k] |= seen[k:]
+    return ~near
 CAMERA_NAME = "video"
 
 
@@ -319,8 +333,8 @@ class _Problem:
             for bone, landmark in _LIMB_ENDS.items():
                 held[:, FIT_BONES.index(bone)] = det.cut[:, LANDMARK_NAMES.index(landmark)]
         for bone, knuckles in _KNUCKLES.items():
-            unseen = (det.visibility[:, [LANDMARK_NAMES.index(n) for n in knuckles]] <= 0).all(1)
-            held[:, FIT_BONES.index(bone)] = np.maximum(held[:, FIT_BONES.index(bone)], unseen)
+            held[:, FIT_BONES.index(bone)] = np.maximum(held[:, FIT_BONES.index(bone)], _hand_unseen(
+                det.visibility[:, [LANDMARK_NAMES.index(n) for n in knuckles]]))
         self.held = torch.as_tensor(held, dtype=f64) if np.any(held) else None
         if shape is not None:
             if not self.kin.fast:

@@ -287,7 +287,7 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
     kept, hands = with_hand_keypoints(det.select(keep))
     if kept.hands is not None:
         log(f"hands fitted to the hand model's knuckles: left in {int(hands[:, 0].sum())}, right in "
-            f"{int(hands[:, 1].sum())} of {len(hands)} frames (the others keep the forearm's direction)")
+            f"{int(hands[:, 1].sum())} of {len(hands)} frames (a hand missed in more than a few frames in a row keeps the forearm's direction there)")
     # where the frame's edges cut the person off: what lies past them is guessed, never seen, and the
     # detector's landmarks at such an edge are guesses too (left out of the fit)
     cut = [edges_cut(m, cr, (W0, H0)) for m in kept.masks]
