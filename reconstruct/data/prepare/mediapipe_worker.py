@@ -97,7 +97,10 @@ def main(argv=None) -> int:
                 masks[i] = np.clip(result.segmentation_mask * 255.0 + 0.5, 0, 255).astype(np.uint8)
     extra = {}
     if not args.no_hands:
-        extra["hands"], extra["hands_found"] = detect_hands(images, landmarks, found, args)
+        try:
+            extra["hands"], extra["hands_found"] = detect_hands(images, landmarks, found, args)
+        except ImportError as exc:  # an interpreter whose mediapipe lacks the hand model: no hands
+            print(f"mediapipe's hand model cannot be imported ({exc!r}); the hands are not fitted", file=sys.stderr)
     if args.refine:
         _siblings_importable()
         from grabcut_refine import refine_mask
