@@ -47,7 +47,8 @@ from .shape import ShapeBasis
 from .silhouette import mesh_silhouette
 
 FIT_BONES = ("spine03", "spine01", "neck01", "head", "upperarm01.L", "upperarm01.R", "lowerarm01.L",
-             "lowerarm01.R", "wrist.L", "wrist.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R")
+             "lowerarm01.R", "wrist.L", "wrist.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L",
+             "lowerleg01.R")
 # per-bone prior weight on (x, y, z) of the axis-angle (world-aligned: x is the hinge of knees/elbows)
 # The thighs' turn about the vertical (z: about their own axis while they hang) weighs 40: a straight
 # leg's keypoints do not see it, and at 1 it drifted to 0.4-1.0 rad on five of the seven photos of
@@ -80,6 +81,8 @@ def _hand_unseen(vis: np.ndarray, gap: int = HAND_GAP) -> np.ndarray:
         near[k:] |= seen[:-k]
         near[:-k] |= seen[k:]
     return ~near
+
+
 CAMERA_NAME = "video"
 
 

@@ -138,7 +138,8 @@ def detect_hands(images, landmarks, found, args):
         import cv2
 
         def scale(img, size):
-            return cv2.resize(img, (size, size), interpolation=cv2.INTER_CUBIC if size > img.shape[0] else cv2.INTER_AREA)
+            grow = size > img.shape[0]
+            return cv2.resize(img, (size, size), interpolation=cv2.INTER_CUBIC if grow else cv2.INTER_AREA)
     except ImportError:  # nearest neighbour, numpy only
         def scale(img, size):
             idx = (np.arange(size) * img.shape[0] / size).astype(int)

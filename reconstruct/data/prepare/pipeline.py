@@ -28,8 +28,8 @@ from ..scene import BodySpec, Frame, Scene
 from ..scene_io import write_scene
 from .crop import EDGES, Crop, apply_crop, edge_lines, edges_cut, held_landmarks, near_edges, person_crop
 from .detector import Detections, PersonDetector
-from .hands import with_hand_keypoints
 from .fit import FIT_BONES, CameraGuess, FitConfig, fit_poses, measure_fit
+from .hands import with_hand_keypoints
 from .inputs import InputError, input_kind, read_input
 from .keypoints import LANDMARK_NAMES, LANDMARK_TARGETS
 from .lean import side_view
@@ -102,8 +102,9 @@ def _log(msg: str) -> None:
 
 
 # what each of prepare's progress stages is called where a person reads it (log lines, bars)
-STAGE_WORDS = {"people": "finding people", "poses": "detecting poses", "hands": "finding hands", "masks": "refining masks",
-               "keypoints": "fitting to keypoints", "silhouette": "fitting to the silhouette"}
+STAGE_WORDS = {"people": "finding people", "poses": "detecting poses", "hands": "finding hands",
+               "masks": "refining masks", "keypoints": "fitting to keypoints",
+               "silhouette": "fitting to the silhouette"}
 
 
 class _ProgressLog:
@@ -287,7 +288,8 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
     kept, hands = with_hand_keypoints(det.select(keep))
     if kept.hands is not None:
         log(f"hands fitted to the hand model's knuckles: left in {int(hands[:, 0].sum())}, right in "
-            f"{int(hands[:, 1].sum())} of {len(hands)} frames (a hand missed in more than a few frames in a row keeps the forearm's direction there)")
+            f"{int(hands[:, 1].sum())} of {len(hands)} frames (a hand missed in more than a few frames in a "
+            f"row keeps the forearm's direction there)")
     # where the frame's edges cut the person off: what lies past them is guessed, never seen, and the
     # detector's landmarks at such an edge are guesses too (left out of the fit)
     cut = [edges_cut(m, cr, (W0, H0)) for m in kept.masks]
@@ -362,7 +364,8 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
                    # > 0: the camera looks down at the person
                    "pitch_deg": float(np.degrees(np.arcsin(np.clip(-(fit.camera.R.T @ [0.0, 0.0, 1.0])[2], -1, 1))))},
         "body": spec.to_dict(), "body_height_m": body_height(final_body), "fitted_bones": list(FIT_BONES),
-        "hands_fitted": None if kept.hands is None else {"left": int(hands[:, 0].sum()), "right": int(hands[:, 1].sum())},
+        "hands_fitted": (None if kept.hands is None
+                         else {"left": int(hands[:, 0].sum()), "right": int(hands[:, 1].sum())}),
         "depth_ambiguity": fit.depth_ambiguity,
         "mean_keypoint_px_error": float(np.nanmean(fit.keypoint_px_error)),
         "mean_silhouette_iou": float(np.mean(fit.iou)),
