@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from reconstruct.data.prepare import Detections, DetectorError, parse_mediapipe_output
-from reconstruct.data.prepare.hand_crops import MIN_REACH, REACH, crop_square, hand_box, uncrop
+from reconstruct.data.prepare.hand_crops import HAND_POINTS, MIN_REACH, REACH, SIDES, crop_square, hand_box, uncrop
 from reconstruct.data.prepare.hands import (INDEX_KNUCKLE, MIDDLE_KNUCKLE, PINKY_KNUCKLE, WRIST, HandGate,
                                             taken_hands, with_hand_keypoints)
 from reconstruct.data.prepare.keypoints import LANDMARK_NAMES, NUM_LANDMARKS, KeypointMap
@@ -19,6 +19,13 @@ L = LANDMARK_NAMES.index
 
 
 # ----- the crops -------------------------------------------------------------------------------------
+def test_the_workers_hand_points_are_the_pose_landmarks_named_so():
+    """``hand_crops`` runs in mediapipe's interpreter, without the project: its own copy of the pose's
+    wrist, index and pinky indices must be the ones ``keypoints.LANDMARK_NAMES`` names."""
+    for side in SIDES:
+        assert HAND_POINTS[side] == tuple(L(f"{side}_{n}") for n in ("wrist", "index", "pinky"))
+
+
 def test_hand_box_reaches_round_the_hand():
     wrist, index, pinky = np.array([100.0, 50.0]), np.array([110.0, 58.0]), np.array([106.0, 62.0])
     x0, y0, size = hand_box(np.stack([wrist, index, pinky]), height=400)

@@ -16,8 +16,8 @@ least ``k``, not the few nearest: next to the hem those are the shadow between t
 the cloth's colour. The first 5 cm under the bottom row are left out for the same reason: on the
 grey-skirt photo the right knee there drew the skirt's grey (its reference 0.55 0.55 0.52, within
 ``min_contrast`` of the cloth, so none of its 17 columns was read; from 5 cm down, skin: 137
-flagged against 38 at 300 Stage I steps, reach 0.25 → 0.30 m). The cloth's colours are those of the seen layer Gaussians more than
-``depth`` in from both of the column's ends. Walking the column up from its bottom row (at most
+flagged against 38 at 300 Stage I steps, reach 0.25 → 0.30 m). The cloth's colours are those of
+the seen layer Gaussians more than ``depth`` in from both of the column's ends. Walking the column up from its bottom row (at most
 ``depth``), each seen opaque layer Gaussian whose colour is within ``tolerance`` of the body's, and
 nearer to it than to the cloth's, shows the body; the walk stops at the first that does not (the
 cloth). Unseen and transparent ones are passed over.

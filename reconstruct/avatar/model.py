@@ -359,7 +359,8 @@ class AvatarModel(nn.Module):
         None without a layer (every Gaussian opaque)."""
         if self.layer is None:
             return None
-        layer = torch.sigmoid(self.config.garment_opacity_gain * self.layer_opacity).masked_fill(self.layer_trimmed, 0.0)
+        layer = torch.sigmoid(self.config.garment_opacity_gain * self.layer_opacity)
+        layer = layer.masked_fill(self.layer_trimmed, 0.0)
         full = torch.cat([torch.ones(self.num_body, dtype=layer.dtype, device=layer.device), layer])
         return full if index is None else full[index]
 

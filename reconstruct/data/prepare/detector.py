@@ -200,7 +200,8 @@ def parse_mediapipe_output(path: str | os.PathLike, width: int, height: int) -> 
             hands_found = z["hands_found"].astype(bool) if "hands_found" in z.files else None
             if hands_found is None or hands.shape != (T, 2, NUM_HAND_LANDMARKS, 2):
                 raise DetectorError(f"{path}: hands have shape {hands.shape} (expected "
-                                    f"({T}, 2, {NUM_HAND_LANDMARKS}, 2)) and hands_found is {'missing' if hands_found is None else hands_found.shape}")
+                                    f"({T}, 2, {NUM_HAND_LANDMARKS}, 2)) and hands_found is "
+                                    f"{'missing' if hands_found is None else hands_found.shape}")
             hands = hands * np.array([width, height], np.float64)
             hands_found = hands_found & found[:, None]
     return Detections(keypoints, visibility, world, masks, found, source=f"mediapipe {version}",
