@@ -125,7 +125,9 @@ def test_trainer_fills_once_at_the_end_of_stage1(tiny_scene, tiny_config, tmp_pa
     assert iter(views) is views
     # the tiny scene has no garment layer: the whole ring of the body keeps its decoded colours;
     # no seen Gaussian is one whose colour training never touched (``seen_trained_only``)
-    assert calls == [{"keep_ring": tiny_config.fill_unseen_ring, "grazing_rule": False, "ring_trained": None}]
+    # and no layer gaps to read round
+    assert calls == [{"keep_ring": tiny_config.fill_unseen_ring, "grazing_rule": False, "ring_trained": None,
+                      "layer_gaps": None, "layer_gap_reach": tiny_config.layer_gap_reach}]
     assert bool((~touched[0]).any()) and not bool((t.state.seen & ~touched[0]).any())
     assert not_sources.dtype == torch.bool and not_sources.shape == (t.state.num_gaussians,)
     assert not (not_sources & ~t.state.seen).any()

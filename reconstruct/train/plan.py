@@ -14,6 +14,7 @@ from .config import Stage1Config, StageSettings
 from ..appearance.wrap_fill import grazing_rule_for
 from ..avatar.layer_depth import match_layer_depth
 from .hem_trim import trim_layer_hem
+from .layer_hidden import layer_hidden_by_limbs
 from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, hair_views_of,
@@ -143,7 +144,7 @@ class Stage1Plan(StagePlan):
             state.occluded_colors = occluded_colors_of(state, context.data)
             # the layer's opacity first: the colours of the body under the cloth follow the cloth
             # where it is opaque (``layer_cover``)
-            n_layer, ring_trained = 0, None
+            n_layer, ring_trained, hidden = 0, None, None
             if state.model.layer is not None:
                 views = layer_training_views(state, context.data, seen_inside=s.layer_seen_inside,
                                              off_person=s.layer_off_person)
@@ -179,6 +180,14 @@ class Stage1Plan(StagePlan):
                         state.seen &= ~behind.to(state.seen.device)
                         notes.append(f"{int(behind.sum())} garment-layer Gaussians behind an arm or a hand drew it: "
                                      "they are unseen, filled like the cloth")
+                if s.layer_hidden_by_limbs:  # colours mixed with the arm in front: the fill's, and the row's opacity
+                    hidden = layer_hidden_by_limbs(state, context.data)
+                    if hidden is not None and hidden.any():
+                        state.seen &= ~hidden.to(state.seen.device)
+                        trained &= ~hidden[state.model.num_body:].to(trained.device)
+                        ring_trained = (torch.ones_like(hidden) if ring_trained is None else ring_trained) & ~hidden
+                        notes.append(f"{int(hidden.sum())} garment-layer Gaussians the arms and hands hid in every "
+                                     "training frame are unseen, filled like the cloth")
                 if s.limbs_over_cloth:  # they drew the cloth behind them: no colour source for the limb's unseen side
                     over = limbs_over_cloth(state, context.data, views=arms)
                     if over is not None and over.any():
@@ -188,7 +197,8 @@ class Stage1Plan(StagePlan):
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
                                    not_sources=not_sources, ring_trained=ring_trained,
-                                   hair_views=hair_views_of(state, context.data))
+                                   hair_views=hair_views_of(state, context.data), layer_gaps=hidden,
+                                   layer_gap_reach=s.layer_gap_reach)
             # Stage II's pseudo-appearance and the editor carry colours from the same sources
             # (``AvatarState.source_flags``)
             state.colour_sources = None if not_sources is None else ~torch.as_tensor(not_sources).cpu().bool()

@@ -48,6 +48,7 @@ import torch
 from scipy.ndimage import binary_dilation
 
 from ..appearance.cut_fill import FrameView, cut_colors
+from ..appearance.gap_fill import enclosed_gap_colors
 from ..appearance.occluded_fill import occluded_colors
 from ..appearance.propagation import erode, erode_by_part
 from ..appearance.wrap_fill import WrapFillConfig, long_hair_colors, wrap_fill_colors
@@ -63,11 +64,15 @@ if TYPE_CHECKING:
 # target colours are kept this far inside (0, 1) so that their logits stay finite
 _COLOR_MARGIN = 1e-3
 
+# a gap's colour read along its row or column (``appearance.gap_fill``) is taken where no channel is
+# further than this from the row's colour the wrap fill gives it
+_GAP_TOLERANCE = 0.15
+
 
 @torch.no_grad()
 def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int = 0, grazing_rule: bool = True,
                        not_sources: torch.Tensor | None = None, ring_trained: torch.Tensor | None = None,
-                       hair_views=None) -> int:
+                       hair_views=None, layer_gaps: torch.Tensor | None = None, layer_gap_reach: int = 16) -> int:
     """Set the colour residual of every Gaussian the painted seen flags call unseen so that it
     decodes to the wrap-around fill's colour. Returns how many Gaussians were filled (0 when the
     avatar has no colour residual, sees nothing or sees everything). ``grazing_rule``: seen
@@ -79,7 +84,11 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
     Gaussians whose decoded colour the training images shaped; an unseen one of the ``keep_ring``
     that is not among them is filled too (None: the ring keeps every decoded colour). ``hair_views``:
     the training frames in which hair worn down is read (``hair_views_of``): its colours are kept
-    as ``state.hair_colors`` for the fills after this one (None: the state's are used as they are)."""
+    as ``state.hair_colors`` for the fills after this one (None: the state's are used as they are).
+    ``layer_gaps``: (N+M,) bool, unseen garment-layer Gaussians inside the seen cloth (those the
+    arms hid): where trusted cloth lies within ``layer_gap_reach`` grid steps both ways along their
+    row or their column they take the colours read along it (``appearance.gap_fill``) instead of
+    their row's, where those lie within ``_GAP_TOLERANCE`` of it (None or a reach of 0: the row's)."""
     model = state.model
     cfg = model.config
     if not cfg.color_residual:
@@ -108,6 +117,20 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
                               layer_grid=model.layer_grid(), hair_seen=hair_seen,
                               surface_normals=model.base_normals.cpu(), cut_colors=state.cut_colors,
                               row_seen=sources, occluded_colors=state.occluded_colors, hair_colors=state.hair_colors)
+    if layer_gaps is not None and layer_gap_reach and model.layer is not None and model.num_layer:
+        nb = model.num_body
+        gaps = torch.as_tensor(layer_gaps, dtype=torch.bool).cpu()
+        if tuple(gaps.shape) != tuple(unseen.shape):
+            raise ValueError(f"fill_unseen_colors: layer_gaps must have shape {tuple(unseen.shape)} (one flag per "
+                             f"Gaussian), found {tuple(gaps.shape)}")
+        gaps = enclosed_gap_colors(model.layer.grid_neighbours(), trusted[nb:].numpy(), colors[nb:].double().numpy(),
+                                   (unseen & gaps)[nb:].numpy(), reach=layer_gap_reach)
+        filled = torch.as_tensor(filled).clone()
+        # read along the row or column, but near the row's colour: a gap in an open coat's flap has
+        # the shirt beside it in the row, and its colour is no cloth's
+        near = np.abs(gaps - filled[nb:].double().numpy()).max(1) <= _GAP_TOLERANCE
+        inside = torch.as_tensor(np.isfinite(gaps).all(1) & near)
+        filled[nb:][inside] = torch.as_tensor(gaps[inside.numpy()], dtype=filled.dtype)
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
     if ring_trained is not None:
         ring_trained = torch.as_tensor(ring_trained, dtype=torch.bool).cpu()
