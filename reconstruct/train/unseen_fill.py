@@ -66,7 +66,7 @@ _COLOR_MARGIN = 1e-3
 
 # a gap's colour read along its row or column (``appearance.gap_fill``) is taken where no channel is
 # further than this from the row's colour the wrap fill gives it
-_GAP_TOLERANCE = 0.15
+_GAP_TOLERANCE = 0.3
 
 
 @torch.no_grad()
