@@ -18,7 +18,7 @@ to it: a gap under a hand at the waistband). A cell with neither pair gets none.
 
 Which cells are gaps is the caller's: a whole unseen back also has cloth on both sides of each
 row of a narrow tube, so only cells known to lie inside the seen front are given (Stage I's
-finish gives those the arms hid, ``train/layer_hidden.py``).
+finish gives those the arms hid, ``train/hidden_by_limbs.py``).
 """
 
 from __future__ import annotations

@@ -134,15 +134,19 @@ class Stage1Config(StageSettings):
     # (avatar/limbs_over_cloth.py)
     limbs_over_cloth: bool = True
     # ... and the layer Gaussians that the arms and hands hid in every training frame (the rays
-    # reach them with the arms transparent, keep less than half of that weight with them: the
+    # reach them with the arms transparent, keep less than a quarter of that weight with them: the
     # skirt behind a photo's hand) are unseen, filled and given the row's opacity like the cloth
     # around them. Their trained colours mixed with the hand in front, and showed as a hand-shaped
-    # imprint on the cloth once the arm moved (train/layer_hidden.py)
+    # imprint on the cloth once the arm moved (train/hidden_by_limbs.py)
     layer_hidden_by_limbs: bool = True
     # ... those hidden Gaussians with trusted cloth within this many grid steps both ways along
     # their row or their column take the colours read along it, which carry pleats and stripes
     # through the gap, instead of their row's, a flat patch (appearance/gap_fill.py; 0: the row's)
     layer_gap_reach: int = 16
+    # ... and the body's Gaussians (not the arms') that the arms and hands hid in every training frame
+    # (the chest behind folded arms, the hip behind a hand) are unseen and filled: their trained
+    # colours showed as a band of specks across the chest once the arms moved (train/hidden_by_limbs.py)
+    body_hidden_by_limbs: bool = True
     # at these fractions of the stage, the seen layer Gaussians under the hem whose colour is the
     # body's just under it (the hem rule of layer_through: the layer reached past the garment's
     # hem and drew the legs) are trimmed off the layer, opacity 0 for good, and the rest of the
@@ -234,7 +238,7 @@ class Stage1Config(StageSettings):
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False, lambda_normal_prior=0.0,
                     seen_on_person=False, seen_min_weight=None, layer_off_person=False, layer_through=False,
                     layer_behind_limbs=False, limbs_over_cloth=False, layer_hidden_by_limbs=False,
-                    layer_gap_reach=0, layer_hem_trims=(), layer_seen_inside=False,
+                    layer_gap_reach=0, body_hidden_by_limbs=False, layer_hem_trims=(), layer_seen_inside=False,
                     layer_depth_match=False, seen_trained_only=False,
                     random_background=False,
                     avatar=AvatarConfig.paper())
@@ -258,6 +262,7 @@ class Stage1Config(StageSettings):
         d.setdefault("limbs_over_cloth", False)  # recorded before arm Gaussians by the layer in its colour were no source
         d.setdefault("layer_hidden_by_limbs", False)  # recorded before the layer hidden behind the arms was filled
         d.setdefault("layer_gap_reach", 0)  # recorded before gaps in the layer's seen cloth were filled along both ways
+        d.setdefault("body_hidden_by_limbs", False)  # recorded before the body hidden behind the arms was filled
         d.setdefault("layer_hem_trims", ())  # recorded before the layer's hem was trimmed part way through
         d.setdefault("layer_seen_inside", False)  # recorded before layer Gaussians seen from inside were unseen
         d.setdefault("layer_depth_match", False)  # recorded before the layer's front and back matched its sides' depth

@@ -14,7 +14,7 @@ from .config import Stage1Config, StageSettings
 from ..appearance.wrap_fill import grazing_rule_for
 from ..avatar.layer_depth import match_layer_depth
 from .hem_trim import trim_layer_hem
-from .layer_hidden import layer_hidden_by_limbs
+from .hidden_by_limbs import hidden_by_limbs
 from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, hair_views_of,
@@ -145,6 +145,10 @@ class Stage1Plan(StagePlan):
             # the layer's opacity first: the colours of the body under the cloth follow the cloth
             # where it is opaque (``layer_cover``)
             n_layer, ring_trained, hidden = 0, None, None
+            # what the arms hid in every training frame (the layer's and the body's, read at once)
+            nb = state.model.num_body
+            hid = (hidden_by_limbs(state, context.data)
+                   if s.body_hidden_by_limbs or (s.layer_hidden_by_limbs and state.model.layer is not None) else None)
             if state.model.layer is not None:
                 views = layer_training_views(state, context.data, seen_inside=s.layer_seen_inside,
                                              off_person=s.layer_off_person)
@@ -180,12 +184,14 @@ class Stage1Plan(StagePlan):
                         state.seen &= ~behind.to(state.seen.device)
                         notes.append(f"{int(behind.sum())} garment-layer Gaussians behind an arm or a hand drew it: "
                                      "they are unseen, filled like the cloth")
-                if s.layer_hidden_by_limbs:  # colours mixed with the arm in front: the fill's, and the row's opacity
-                    hidden = layer_hidden_by_limbs(state, context.data)
-                    if hidden is not None and hidden.any():
+                if s.layer_hidden_by_limbs and hid is not None:
+                    # colours mixed with the arm in front: the fill's, read round the gap, and the row's opacity
+                    hidden = hid.clone()
+                    hidden[:nb] = False
+                    if hidden.any():
                         state.seen &= ~hidden.to(state.seen.device)
-                        trained &= ~hidden[state.model.num_body:].to(trained.device)
-                        ring_trained = (torch.ones_like(hidden) if ring_trained is None else ring_trained) & ~hidden
+                        trained &= ~hidden[nb:].to(trained.device)
+                        ring_trained = ~hidden if ring_trained is None else ring_trained & ~hidden
                         notes.append(f"{int(hidden.sum())} garment-layer Gaussians the arms and hands hid in every "
                                      "training frame are unseen, filled like the cloth")
                 if s.limbs_over_cloth:  # they drew the cloth behind them: no colour source for the limb's unseen side
@@ -195,6 +201,14 @@ class Stage1Plan(StagePlan):
                                      "no colour source for the limb's unseen side")
                         not_sources = over if not_sources is None else not_sources | over
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
+            if s.body_hidden_by_limbs and hid is not None:  # the chest behind folded arms: filled round them
+                body_hidden = hid.clone()
+                body_hidden[nb:] = False
+                if body_hidden.any():
+                    state.seen &= ~body_hidden.to(state.seen.device)
+                    ring_trained = ~body_hidden if ring_trained is None else ring_trained & ~body_hidden
+                    notes.append(f"{int(body_hidden.sum())} body Gaussians the arms and hands hid in every training "
+                                 "frame are unseen, filled like what surrounds them")
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
                                    not_sources=not_sources, ring_trained=ring_trained,
                                    hair_views=hair_views_of(state, context.data), layer_gaps=hidden,
