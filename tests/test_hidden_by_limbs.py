@@ -102,9 +102,9 @@ def test_blend_weights_sum_to_the_rendered_alpha(layered):
 def test_what_is_behind_an_arm_is_flagged_where_the_arm_covers_it(layered, tight, monkeypatch, on):
     """With the arms 5 cm in front of the layer (or, on an avatar without one, of the torso), the
     Gaussians there whose footprint the arms alone cover (their rendered alpha above 0.95 within
-    1.5 sigma of the centre, the arms' depth nearer there) are flagged, those of the front whose footprint the arms do not reach (alpha below 0.05 within
-    2 sigma) are not, and no arm Gaussian is. Moved 15 cm behind that front, they hide nothing
-    nearer the camera than themselves."""
+    1.5 sigma of the centre, the arms' depth nearer there) are flagged, those of the front whose
+    footprint the arms do not reach (alpha below 0.05 within 2 sigma) are not, and no arm Gaussian
+    is. Moved 15 cm behind that front, they hide nothing nearer the camera than themselves."""
     t = layered if on == "layer" else tight
     N = t.model.num_body
     part = torch.zeros(t.model.num_gaussians, dtype=torch.bool)

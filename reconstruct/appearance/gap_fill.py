@@ -30,6 +30,15 @@ import numpy as np
 _NEXT_COL, _NEXT_ROW, _PREV_COL, _PREV_ROW = range(4)
 
 
+def _step(neighbours: np.ndarray, at: np.ndarray, live: np.ndarray, direction: int):
+    """One step along ``direction`` for the walks still ``live``: (where each walk is now, still
+    live, ended at the grid's edge on this step)."""
+    nxt = np.where(live, neighbours[at, direction], -1)
+    edge = live & (nxt < 0)
+    live = live & (nxt >= 0)
+    return np.where(live, nxt, at), live, edge
+
+
 def _first_source(neighbours: np.ndarray, sources: np.ndarray, start: np.ndarray, direction: int,
                   reach: int) -> tuple[np.ndarray, np.ndarray]:
     """(steps, index) for each of ``start``: how many steps along ``direction`` to the first source
@@ -39,10 +48,8 @@ def _first_source(neighbours: np.ndarray, sources: np.ndarray, start: np.ndarray
     at = start.copy()
     live = np.ones(len(start), bool)
     for k in range(1, reach + 1):
-        nxt = np.where(live, neighbours[at, direction], -1)
-        found[live & (nxt < 0)] = -2
-        live &= nxt >= 0
-        at = np.where(live, nxt, at)
+        at, live, edge = _step(neighbours, at, live, direction)
+        found[edge] = -2
         hit = live & sources[at]
         steps[hit], found[hit] = k, at[hit]
         live &= ~hit
@@ -64,9 +71,7 @@ def _colour_from(neighbours: np.ndarray, sources: np.ndarray, colors: np.ndarray
     picks = [colors[at]]
     live = np.ones(len(at), bool)
     for _ in range(depth - 1):
-        nxt = np.where(live, neighbours[at, direction], -1)
-        live &= nxt >= 0
-        at = np.where(live, nxt, at)
+        at, live, _edge = _step(neighbours, at, live, direction)
         c = colors[at].copy()
         c[~(live & sources[at])] = np.nan
         picks.append(c)
@@ -92,16 +97,21 @@ def enclosed_gap_colors(neighbours: np.ndarray, sources: np.ndarray, colors: np.
                          f"M={m}; found {neighbours.shape}, {todo.shape}, {colors.shape}")
     if reach < 1:
         raise ValueError(f"enclosed_gap_colors: reach must be at least 1 grid step, found {reach}")
+    if depth < 1:
+        raise ValueError(f"enclosed_gap_colors: depth must be at least 1 cell, found {depth}")
     out = np.full((m, 3), np.nan)
     cells = np.flatnonzero(todo & ~sources)
     if not len(cells) or not sources.any():
         return out
-    if depth < 1:
-        raise ValueError(f"enclosed_gap_colors: depth must be at least 1 cell, found {depth}")
-    walks = [_first_source(neighbours, sources, cells, d, reach) for d in range(4)]
-    (s_nc, i_nc), (s_nr, i_nr), (s_pc, i_pc), (s_pr, i_pr) = [(s.astype(np.float64), i) for s, i in walks]
-    c_nc, c_nr, c_pc, c_pr = [_colour_from(neighbours, sources, colors, i, d, depth)
-                              for d, (_, i) in enumerate(walks)]
+
+    def side(direction):  # steps to the first source that way, its index, and that side's colour
+        steps, found = _first_source(neighbours, sources, cells, direction, reach)
+        return steps.astype(np.float64), found, _colour_from(neighbours, sources, colors, found, direction, depth)
+
+    s_nc, i_nc, c_nc = side(_NEXT_COL)
+    s_pc, i_pc, c_pc = side(_PREV_COL)
+    s_nr, i_nr, c_nr = side(_NEXT_ROW)
+    s_pr, i_pr, c_pr = side(_PREV_ROW)
     in_row = (i_nc >= 0) & (i_pc >= 0)
     # along the column the grid's top or hem may stand for the missing side: the colour below (or
     # above) carried up to it (a gap under a hand at the waistband)

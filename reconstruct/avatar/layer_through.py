@@ -231,6 +231,11 @@ class LimbConfig:
 ARM_PARTS = ("upperarm.L", "lowerarm.L", "hand.L", "upperarm.R", "lowerarm.R", "hand.R")
 
 
+def arm_mask(parts) -> np.ndarray:
+    """(N,) bool: which of the part indices ``parts`` are an arm's or a hand's (``ARM_PARTS``)."""
+    return np.isin(np.asarray(parts), [PART_INDEX[p] for p in ARM_PARTS])
+
+
 def layer_shows_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, body_seen: np.ndarray,
                       layer_colors: np.ndarray, layer_seen: np.ndarray, layer_rc: np.ndarray,
                       grid_shape: tuple[int, int], layer_opacity: np.ndarray | None = None,
@@ -244,8 +249,7 @@ def layer_shows_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, bo
     layer_seen = np.asarray(layer_seen, bool)
     if layer_opacity is not None:
         layer_seen = layer_seen & (np.asarray(layer_opacity, np.float64) >= cfg.min_opacity)
-    arms = np.flatnonzero(np.isin(np.asarray(body_parts), [PART_INDEX[p] for p in ARM_PARTS])
-                           & np.asarray(body_seen, bool))
+    arms = np.flatnonzero(arm_mask(body_parts) & np.asarray(body_seen, bool))
     if M == 0 or layer_seen.sum() < cfg.k or len(arms) < cfg.k:
         return out
     R, C = grid_shape
@@ -293,8 +297,7 @@ def layer_behind_limbs(views, body_parts: np.ndarray, body_colors: np.ndarray, b
     M = len(layer_colors)
     out = np.zeros(M, bool)
     layer_seen = np.asarray(layer_seen, bool)
-    arms = np.flatnonzero(np.isin(np.asarray(body_parts), [PART_INDEX[p] for p in ARM_PARTS])
-                           & np.asarray(body_seen, bool))
+    arms = np.flatnonzero(arm_mask(body_parts) & np.asarray(body_seen, bool))
     if M == 0 or layer_seen.sum() < cfg.k or len(arms) < cfg.k:
         return out
     w = cfg.luminance_weight

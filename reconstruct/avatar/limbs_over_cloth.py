@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..body.parts import PART_INDEX
-from .layer_through import ARM_PARTS, _split_views, colour_distance, median_colour_within
+from .layer_through import arm_mask, _split_views, colour_distance, median_colour_within
 
 # the kinds whose own colour is read together, both sides
 LIMB_KINDS = (("hand.L", "hand.R"), ("lowerarm.L", "lowerarm.R"), ("upperarm.L", "upperarm.R"))
@@ -67,7 +67,7 @@ def limbs_over_cloth(views, body_parts: np.ndarray, body_colors: np.ndarray, bod
     lseen = np.asarray(layer_seen, bool)
     if layer_opacity is not None:
         lseen = lseen & (np.asarray(layer_opacity, np.float64) >= cfg.min_opacity)
-    cand = np.flatnonzero(np.isin(parts, [PART_INDEX[p] for p in ARM_PARTS]) & np.asarray(body_seen, bool))
+    cand = np.flatnonzero(arm_mask(parts) & np.asarray(body_seen, bool))
     cloth = np.flatnonzero(lseen)
     if len(cand) < cfg.k or len(cloth) < cfg.k:
         return out

@@ -29,13 +29,11 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
 import torch
 
 from ..avatar.garment_layer import spread_frames
-from ..avatar.layer_through import ARM_PARTS
+from ..avatar.layer_through import arm_mask
 from ..avatar.state import AvatarState
-from ..body.parts import PART_INDEX
 from .data import TrainingData
 from .render import render_avatar
 
@@ -50,9 +48,8 @@ def blend_weights(posed, camera, background: torch.Tensor) -> torch.Tensor:
 
 
 def arm_gaussians(model) -> torch.Tensor:
-    """(N+M,) bool: the body's arm and hand Gaussians (``layer_through.ARM_PARTS``)."""
-    parts = np.asarray(model.parts())
-    arms = np.isin(parts, [PART_INDEX[p] for p in ARM_PARTS])
+    """(N+M,) bool: the body's arm and hand Gaussians (``layer_through.arm_mask``)."""
+    arms = arm_mask(model.parts())
     arms[model.num_body:] = False
     return torch.as_tensor(arms)
 

@@ -72,6 +72,13 @@ class StagePlan:
         return f"{s.iters} steps" + (f" or {s.minutes:g} min" if s.minutes else "")
 
 
+def _unseen_and_filled(state, flags: torch.Tensor, ring_trained: torch.Tensor | None) -> torch.Tensor:
+    """``flags`` ((N+M,) bool) made unseen and taken out of the fill's ring, so that the fill repaints
+    them: the new ``ring_trained`` (None before: every Gaussian's decoded colour kept in the ring)."""
+    state.seen &= ~flags.to(state.seen.device)
+    return ~flags if ring_trained is None else ring_trained & ~flags
+
+
 class Stage1Plan(StagePlan):
     """Stage I (paper Sec. 3.1, Eq. 11): given-view steps on the video, decoder and feature map
     optimised, first hits marked seen."""
@@ -144,11 +151,15 @@ class Stage1Plan(StagePlan):
             state.occluded_colors = occluded_colors_of(state, context.data)
             # the layer's opacity first: the colours of the body under the cloth follow the cloth
             # where it is opaque (``layer_cover``)
-            n_layer, ring_trained, hidden = 0, None, None
-            # what the arms hid in every training frame (the layer's and the body's, read at once)
-            nb = state.model.num_body
+            n_layer, ring_trained = 0, None
+            # what the arms hid in every training frame: the layer's and the body's, read from the
+            # same renders
+            has_layer = state.model.layer is not None
             hid = (hidden_by_limbs(state, context.data)
-                   if s.body_hidden_by_limbs or (s.layer_hidden_by_limbs and state.model.layer is not None) else None)
+                   if s.body_hidden_by_limbs or (s.layer_hidden_by_limbs and has_layer) else None)
+            on_layer = torch.arange(state.num_gaussians) >= state.model.num_body
+            hidden = hid & on_layer if hid is not None and s.layer_hidden_by_limbs and has_layer else None
+            body_hidden = hid & ~on_layer if hid is not None and s.body_hidden_by_limbs else None
             if state.model.layer is not None:
                 views = layer_training_views(state, context.data, seen_inside=s.layer_seen_inside,
                                              off_person=s.layer_off_person)
@@ -184,16 +195,12 @@ class Stage1Plan(StagePlan):
                         state.seen &= ~behind.to(state.seen.device)
                         notes.append(f"{int(behind.sum())} garment-layer Gaussians behind an arm or a hand drew it: "
                                      "they are unseen, filled like the cloth")
-                if s.layer_hidden_by_limbs and hid is not None:
+                if hidden is not None and hidden.any():
                     # colours mixed with the arm in front: the fill's, read round the gap, and the row's opacity
-                    hidden = hid.clone()
-                    hidden[:nb] = False
-                    if hidden.any():
-                        state.seen &= ~hidden.to(state.seen.device)
-                        trained &= ~hidden[nb:].to(trained.device)
-                        ring_trained = ~hidden if ring_trained is None else ring_trained & ~hidden
-                        notes.append(f"{int(hidden.sum())} garment-layer Gaussians the arms and hands hid in every "
-                                     "training frame are unseen, filled like the cloth")
+                    ring_trained = _unseen_and_filled(state, hidden, ring_trained)
+                    trained &= ~hidden[state.model.num_body:].to(trained.device)
+                    notes.append(f"{int(hidden.sum())} garment-layer Gaussians the arms and hands hid in every "
+                                 "training frame are unseen, filled like the cloth")
                 if s.limbs_over_cloth:  # they drew the cloth behind them: no colour source for the limb's unseen side
                     over = limbs_over_cloth(state, context.data, views=arms)
                     if over is not None and over.any():
@@ -201,14 +208,10 @@ class Stage1Plan(StagePlan):
                                      "no colour source for the limb's unseen side")
                         not_sources = over if not_sources is None else not_sources | over
                 n_layer = fill_unseen_layer_opacity(state, trained, empty=empty)
-            if s.body_hidden_by_limbs and hid is not None:  # the chest behind folded arms: filled round them
-                body_hidden = hid.clone()
-                body_hidden[nb:] = False
-                if body_hidden.any():
-                    state.seen &= ~body_hidden.to(state.seen.device)
-                    ring_trained = ~body_hidden if ring_trained is None else ring_trained & ~body_hidden
-                    notes.append(f"{int(body_hidden.sum())} body Gaussians the arms and hands hid in every training "
-                                 "frame are unseen, filled like what surrounds them")
+            if body_hidden is not None and body_hidden.any():  # the chest behind folded arms: filled round them
+                ring_trained = _unseen_and_filled(state, body_hidden, ring_trained)
+                notes.append(f"{int(body_hidden.sum())} body Gaussians the arms and hands hid in every training "
+                             "frame are unseen, filled like what surrounds them")
             n = fill_unseen_colors(state, keep_ring=s.fill_unseen_ring, grazing_rule=grazing_rule_for(s),
                                    not_sources=not_sources, ring_trained=ring_trained,
                                    hair_views=hair_views_of(state, context.data), layer_gaps=hidden,

@@ -119,18 +119,19 @@ def fill_unseen_colors(state: AvatarState, *, erosion: int = 2, keep_ring: int =
                               row_seen=sources, occluded_colors=state.occluded_colors, hair_colors=state.hair_colors)
     if layer_gaps is not None and layer_gap_reach and model.layer is not None and model.num_layer:
         nb = model.num_body
-        gaps = torch.as_tensor(layer_gaps, dtype=torch.bool).cpu()
-        if tuple(gaps.shape) != tuple(unseen.shape):
+        gap_flags = torch.as_tensor(layer_gaps, dtype=torch.bool).cpu()
+        if tuple(gap_flags.shape) != tuple(unseen.shape):
             raise ValueError(f"fill_unseen_colors: layer_gaps must have shape {tuple(unseen.shape)} (one flag per "
-                             f"Gaussian), found {tuple(gaps.shape)}")
-        gaps = enclosed_gap_colors(model.layer.grid_neighbours(), trusted[nb:].numpy(), colors[nb:].double().numpy(),
-                                   (unseen & gaps)[nb:].numpy(), reach=layer_gap_reach)
+                             f"Gaussian), found {tuple(gap_flags.shape)}")
+        gap_colors = enclosed_gap_colors(model.layer.grid_neighbours(), trusted[nb:].numpy(),
+                                         colors[nb:].double().numpy(), (unseen & gap_flags)[nb:].numpy(),
+                                         reach=layer_gap_reach)
         filled = torch.as_tensor(filled).clone()
         # read along the row or column, but near the row's colour: a gap in an open coat's flap has
         # the shirt beside it in the row, and its colour is no cloth's
-        near = np.abs(gaps - filled[nb:].double().numpy()).max(1) <= _GAP_TOLERANCE
-        inside = torch.as_tensor(np.isfinite(gaps).all(1) & near)
-        filled[nb:][inside] = torch.as_tensor(gaps[inside.numpy()], dtype=filled.dtype)
+        near = np.abs(gap_colors - filled[nb:].double().numpy()).max(1) <= _GAP_TOLERANCE
+        take = np.isfinite(gap_colors).all(1) & near
+        filled[nb:][torch.as_tensor(take)] = torch.as_tensor(gap_colors[take], dtype=filled.dtype)
     todo = torch.as_tensor(erode(unseen.numpy(), neighbours, keep_ring)) if keep_ring else unseen
     if ring_trained is not None:
         ring_trained = torch.as_tensor(ring_trained, dtype=torch.bool).cpu()

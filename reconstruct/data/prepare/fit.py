@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from scipy.ndimage import binary_dilation
 
 from ...body.base import BodyModel
 from ...body.lbs import apply_points, blend
@@ -76,11 +77,7 @@ def _hand_unseen(vis: np.ndarray, gap: int = HAND_GAP) -> np.ndarray:
     """(T,) bool: frames whose hand has no knuckles ((T,K) visibility all 0) and no frame within ``gap``
     that has them."""
     seen = (np.asarray(vis) > 0).any(1)
-    near = seen.copy()
-    for k in range(1, gap + 1):
-        near[k:] |= seen[:-k]
-        near[:-k] |= seen[k:]
-    return ~near
+    return ~binary_dilation(seen, iterations=gap) if gap > 0 else ~seen
 
 
 CAMERA_NAME = "video"
