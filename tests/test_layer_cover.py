@@ -28,22 +28,32 @@ def _opacity(rc):
     op = np.full(len(rc), 0.9)
     op[rc[:, 0] == 0] = 0.2  # the top fades into the body
     op[(rc[:, 1] < 6) & (rc[:, 0] >= 6)] = 0.05  # a shorter hem on one side
-    op[(rc[:, 1] == 10) & (rc[:, 0] == 3)] = 0.05  # a hole: the column's hem is above it
+    op[(rc[:, 1] == 10) & (rc[:, 0] == 3)] = 0.05  # a speck: the column's run goes on under it
+    op[(rc[:, 1] == 14) & (rc[:, 0] >= 4) & (rc[:, 0] <= 6)] = 0.05  # a hole of 3 rows: the hem is above it
     op[rc[:, 0] == R - 1] = 0.05
     return op
 
 
-def _reference(body, parts, lpos, lnrm, rc, op, covered, margin):
-    """float64, brute force, loops: the nearest layer Gaussian; its column's opaque run from row 1."""
+def _reference(body, parts, lpos, lnrm, rc, op, covered, margin, cut=None, bridge=2):
+    """float64, brute force, loops: the nearest layer Gaussian; its column's opaque run from row 1
+    across gaps of up to ``bridge`` rows (a ``cut`` Gaussian counts as opaque in a row where at
+    least half the columns are)."""
     out = np.full(len(body), -1)
     hem = {}
     for col in range(C):
         z = None
+        gap = 0
         for row in range(1, R):
             k = np.flatnonzero((rc[:, 0] == row) & (rc[:, 1] == col))[0]
-            if op[k] < 0.5:
-                break
-            z = (row, lpos[k, 2])
+            in_row = rc[:, 0] == row
+            cloth = op[k] >= 0.5 or (cut is not None and cut[k]
+                                     and (op[in_row] >= 0.5).sum() >= 0.5 * in_row.sum())
+            if cloth:
+                z, gap = (row, lpos[k, 2]), 0
+            else:
+                gap += 1
+                if gap > bridge:
+                    break
         hem[col] = z
     for i, p in enumerate(body):
         if parts[i] not in covered:
@@ -77,6 +87,15 @@ def test_hidden_body_matches_brute_force():
     covered = {PART_INDEX["thigh.L"], PART_INDEX["torso"]}
     want = _reference(body, parts, lpos, lnrm, rc, op, covered, 0.03)
     np.testing.assert_array_equal(got, want)
+    # no bridging: the speck ends column 10's run as the hole ends column 14's
+    strict = body_under_layer(body, parts, lpos, lnrm, rc, (R, C), op, hem_margin=0.03, bridge_rows=0)
+    np.testing.assert_array_equal(strict, _reference(body, parts, lpos, lnrm, rc, op, covered, 0.03, bridge=0))
+    col_of = rc[((lpos[None] - body[:, None]) ** 2).sum(2).argmin(1), 1]
+    low = (body[:, 2] < -0.2) & (rad < 0.19) & np.isin(parts, list(covered))
+    for col, bridged in ((10, True), (14, False)):
+        sel = low & (col_of == col)
+        assert sel.sum() > 3
+        assert (got[sel] >= 0).any() == bridged and not (strict[sel] >= 0).any()
     hidden = got >= 0
     # the case is rich: many hidden, and each reason to be left out occurs
     assert 300 < hidden.sum() < n // 2
@@ -89,6 +108,40 @@ def test_hidden_body_matches_brute_force():
     top_nearest = rc[((lpos[None] - body[:, None]) ** 2).sum(2).argmin(1), 0] == 0
     assert (hidden & top_nearest).sum() > 10 and (rc[got[hidden & top_nearest], 0] == 1).all()
     assert not hidden[top_nearest & (body[:, 2] > 0)].any()
+
+
+def test_a_side_the_outline_cut_still_hides_the_body():
+    """Columns 12-15 emptied by training from row 1 down: without ``cut`` they hide nothing; cut,
+    they hide the body above the hem of the columns beside them. Cut Gaussians in the bottom row
+    (no row there is opaque) do not lengthen the hem; an emptied column not cut (an open front over
+    the person) still hides nothing. Against the brute-force reference."""
+    lpos, lnrm, rc = _tube()
+    op = _opacity(rc)
+    side = (rc[:, 1] >= 12) & (rc[:, 1] <= 15) & (rc[:, 0] >= 1)
+    op[side] = 0.02
+    op[(rc[:, 1] == 18) & (rc[:, 0] >= 1)] = 0.02  # an open front: emptied, over the person's mask
+    cut = side.copy()
+    cut[rc[:, 0] == R - 1] = True  # below the hem: off the mask, but no garment row
+    rng = np.random.default_rng(3)
+    n = 3000
+    th = rng.uniform(0, 2 * np.pi, n)
+    rad = rng.uniform(0.05, 0.26, n)
+    body = np.c_[rad * np.cos(th), rad * np.sin(th), rng.uniform(-0.6, 0.1, n)]
+    parts = np.full(n, PART_INDEX["thigh.L"])
+    covered = {PART_INDEX["thigh.L"]}
+    before = body_under_layer(body, parts, lpos, lnrm, rc, (R, C), op, hem_margin=0.03)
+    got = body_under_layer(body, parts, lpos, lnrm, rc, (R, C), op, hem_margin=0.03, cut=cut)
+    np.testing.assert_array_equal(before, _reference(body, parts, lpos, lnrm, rc, op, covered, 0.03))
+    np.testing.assert_array_equal(got, _reference(body, parts, lpos, lnrm, rc, op, covered, 0.03, cut=cut))
+    col_of = rc[((lpos[None] - body[:, None]) ** 2).sum(2).argmin(1), 1]
+    under_side = np.isin(col_of, [12, 13, 14, 15]) & (rad < 0.19) & (body[:, 2] < -0.05) & (body[:, 2] > -0.3)
+    assert under_side.sum() > 30
+    assert (before[under_side] == -1).all() and (got[under_side] >= 0).all()
+    assert (got[col_of == 18] == -1).all()  # the open front
+    # the hem is the neighbours': nothing hidden within the margin of the run's last row, nor under it
+    last = lpos[(rc[:, 0] == R - 2) & (rc[:, 1] == 12), 2][0]
+    assert not (got[np.isin(col_of, [12, 13, 14, 15]) & (body[:, 2] < last + 0.03)] >= 0).any()
+    np.testing.assert_array_equal(got[~np.isin(col_of, [12, 13, 14, 15])], before[~np.isin(col_of, [12, 13, 14, 15])])
 
 
 def test_no_layer_hides_nothing():

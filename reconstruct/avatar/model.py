@@ -170,6 +170,11 @@ class AvatarModel(nn.Module):
             # (M,) layer Gaussians taken out of the garment for good (``trim_layer``: under the hem,
             # where the layer drew the legs): opacity 0 whatever their parameter, no gradient
             self.register_buffer("layer_trimmed", torch.zeros(layer.num_gaussians, dtype=torch.bool))
+            # (M,) layer Gaussians the person's outline cut away: training made them transparent where
+            # they stood past the silhouette (a side of the layer wider than the photo's skirt). Still
+            # the cloth's place: the body under them takes its colour (``layer_cover``); set by Stage
+            # I's finish (``mark_outline_cut``), kept in checkpoints
+            self.register_buffer("layer_outline_cut", torch.zeros(layer.num_gaussians, dtype=torch.bool))
             rc = torch.stack(torch.meshgrid(torch.arange(rows), torch.arange(cols), indexing="ij"), -1).reshape(-1, 2)
             self.register_buffer("layer_rc", rc, persistent=False)  # (M,2) row, column of each grid point
             node_rc = torch.as_tensor(nodes.grid_rc)
@@ -619,6 +624,17 @@ class AvatarModel(nn.Module):
         new = int((flags & ~self.layer_trimmed).sum())
         self.layer_trimmed |= flags
         return new
+
+    @torch.no_grad()
+    def mark_outline_cut(self, flags) -> int:
+        """Record the garment layer's Gaussians ``flags`` ((M,) bool) as cut away by the person's
+        outline (``layer_outline_cut``; replaces the earlier record). Returns how many are marked."""
+        flags = torch.as_tensor(flags, dtype=torch.bool, device=self.layer_outline_cut.device)
+        if flags.shape != self.layer_outline_cut.shape:
+            raise ValueError(f"mark_outline_cut: flags must have shape {tuple(self.layer_outline_cut.shape)}, "
+                             f"found {tuple(flags.shape)}")
+        self.layer_outline_cut.copy_(flags)
+        return int(flags.sum())
 
     @torch.no_grad()
     def move_layer(self, delta: torch.Tensor) -> None:

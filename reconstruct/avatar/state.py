@@ -276,6 +276,9 @@ class AvatarState:
             model_state["layer_skin_logit"] = torch.zeros_like(self.model.layer_skin_logit)
         if self.model.layer is not None and "layer_trimmed" not in model_state:
             model_state["layer_trimmed"] = torch.zeros_like(self.model.layer_trimmed)  # saved before trimming existed
+        if self.model.layer is not None and "layer_outline_cut" not in model_state:
+            # saved before the outline's cut was recorded: none
+            model_state["layer_outline_cut"] = torch.zeros_like(self.model.layer_outline_cut)
         self.model.load_state_dict(model_state)
         with torch.no_grad():
             self.pose_delta.copy_(state["pose_delta"])

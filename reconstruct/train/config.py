@@ -119,6 +119,10 @@ class Stage1Config(StageSettings):
     # (more than 2 px off the mask: empty air, whichever way they face) keep their learned opacity
     # instead of the row's (train/unseen_fill.py, layer_off_person)
     layer_off_person: bool = True
+    # ... and those of them training made transparent (opacity under 0.5, not trimmed) are the
+    # layer's side the person's outline cut away: the body under them takes the cloth's colour
+    # (avatar/layer_cover.py, ``AvatarModel.layer_outline_cut``)
+    layer_outline_cut: bool = True
     # ... and the seen layer Gaussians under the layer's hem whose colour is the body's seen just
     # under it (the legs under a skirt, trousers under a coat: avatar/layer_through.py) are no
     # colour source for the layer's unseen side
@@ -236,7 +240,8 @@ class Stage1Config(StageSettings):
         """The settings before the Stage I fidelity work (GaussianAvatar's schedule, every Gaussian
         decoded every step, the paper's Gaussians: ``AvatarConfig.paper()``), for comparisons."""
         base = dict(lr_milestones=(1 / 3, 2 / 3), cull_backfacing=None, fill_unseen=False, lambda_normal_prior=0.0,
-                    seen_on_person=False, seen_min_weight=None, layer_off_person=False, layer_through=False,
+                    seen_on_person=False, seen_min_weight=None, layer_off_person=False, layer_outline_cut=False,
+                    layer_through=False,
                     layer_behind_limbs=False, limbs_over_cloth=False, layer_hidden_by_limbs=False,
                     layer_gap_reach=0, body_hidden_by_limbs=False, layer_hem_trims=(), layer_seen_inside=False,
                     layer_depth_match=False, seen_trained_only=False,
@@ -257,6 +262,7 @@ class Stage1Config(StageSettings):
         d.setdefault("seen_on_person", False)  # recorded before the seen flags were recounted on the person
         d.setdefault("seen_min_weight", None)  # recorded before the recount counted blended Gaussians
         d.setdefault("layer_off_person", False)  # recorded before the layer's fill left off-person Gaussians empty
+        d.setdefault("layer_outline_cut", False)  # recorded before the body under a side the outline cut took the cloth's colour
         d.setdefault("layer_through", False)  # recorded before the layer's fill told the body through it from cloth
         d.setdefault("layer_behind_limbs", False)  # recorded before layer Gaussians behind an arm took the cloth's colour
         d.setdefault("limbs_over_cloth", False)  # recorded before arm Gaussians by the layer in its colour were no source

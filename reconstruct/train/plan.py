@@ -19,7 +19,7 @@ from .seen_recount import keep_seen_on_person, person_coverage, unsee_untrained
 from .steps import GivenViewStep, TrainingStep
 from .unseen_fill import (cut_colors_of, fill_unseen_colors, fill_unseen_layer_opacity, hair_views_of,
                           layer_behind_limbs, layer_reached, layer_through, layer_training_views, limb_views,
-                          limbs_over_cloth, occluded_colors_of)
+                          limbs_over_cloth, mark_outline_cut, occluded_colors_of)
 
 # px of blend weight (over opacity, in one training frame, its surface facing the camera) from
 # which a garment-layer Gaussian of the fill's ring counts as reached from outside and keeps its
@@ -162,7 +162,7 @@ class Stage1Plan(StagePlan):
             body_hidden = hid & ~on_layer if hid is not None and s.body_hidden_by_limbs else None
             if state.model.layer is not None:
                 views = layer_training_views(state, context.data, seen_inside=s.layer_seen_inside,
-                                             off_person=s.layer_off_person)
+                                             off_person=s.layer_off_person or s.layer_outline_cut)
                 inside = views.get("seen_inside")
                 if inside is not None and inside.any():
                     state.seen[state.model.num_body:] &= ~inside.to(state.seen.device)
@@ -179,7 +179,12 @@ class Stage1Plan(StagePlan):
                     # take the cloth's opacity
                     shaped = faced | layer_reached(state, coverage.total_max, _RING_MIN_REACH)
                     ring_trained = torch.cat([torch.ones(state.model.num_body, dtype=torch.bool), shaped.cpu().bool()])
-                empty = views.get("off_person")
+                empty = views.get("off_person") if s.layer_off_person else None
+                if s.layer_outline_cut:  # the cloth the outline cut away still hides the body under it
+                    n_cut = mark_outline_cut(state, views["off_person"])
+                    if n_cut:
+                        notes.append(f"{n_cut} garment-layer Gaussians training emptied past the person's outline "
+                                     "still hide the body under them from the fill")
                 # the training frames the three arm rules read, posed once for all, and the colours
                 arms = (limb_views(state, context.data)
                         if s.layer_through or s.layer_behind_limbs or s.limbs_over_cloth else None)

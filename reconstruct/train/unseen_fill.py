@@ -386,6 +386,19 @@ def layer_training_views(state: AvatarState, data: TrainingData, *, seen_inside:
     return out
 
 
+def mark_outline_cut(state: AvatarState, off_person: torch.Tensor, min_opacity: float = 0.5) -> int:
+    """Record in the model (``AvatarModel.mark_outline_cut``) the garment layer's Gaussians the
+    person's outline cut away: on the background in some training frame (``off_person``, (M,) bool,
+    ``layer_off_person``) and made transparent by training (opacity under ``min_opacity``), not
+    trimmed. ``layer_cover`` counts them as the cloth's. Returns how many; 0 without a layer."""
+    model = state.model
+    if model.layer is None or model.num_layer == 0:
+        return 0
+    opacity = model.opacities().detach().cpu()[model.num_body:]
+    cut = off_person.cpu().bool() & (opacity < min_opacity) & ~model.layer_trimmed.cpu()
+    return model.mark_outline_cut(cut)
+
+
 def layer_reached(state: AvatarState, total_max: torch.Tensor, min_weight: float) -> torch.Tensor:
     """(M,) bool: the garment-layer Gaussians the training rays reached: their blend weight in one
     training frame (``PersonCoverage.total_max``, all N+M Gaussians), divided by their opacity, is
