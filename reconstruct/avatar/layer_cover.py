@@ -20,10 +20,10 @@ back) and no lower than the column's hem, the lowest row of the run of rows with
 (2: 2.8 cm at the layer's 1.4 cm rows): a photo's layer has transparent specks where training
 emptied a Gaussian or two, at the waist and mid-column, and a speck ended its column's run there,
 so the whole body under the column took its own fill (the mirrored grey-skirt photo's thigh, skin
-down the skirt's side). An open coat's front is many rows without cloth. The body point must also be ``hem_margin`` above that
-hem: a hem is curved and its height differs from column to column, and on the coat photo a strip of
-the shin under the back hem, whose nearest layer Gaussians were the front's lower ones, came out in
-the coat's colour without the margin.
+down the skirt's side); an open coat's front is many rows without cloth. The body point must also
+be ``hem_margin`` above that hem: a hem is curved and its height differs from column to column,
+and on the coat photo a strip of the shin under the back hem, whose nearest layer Gaussians were
+the front's lower ones, came out in the coat's colour without the margin.
 Body Gaussians above the layer's top or below its hem are not hidden.
 
 Where the person's outline cut the layer (``cut``: Gaussians training made transparent because
