@@ -1470,6 +1470,37 @@ def test_an_open_coats_back_above_the_layer_takes_the_coats_colour():
                                                   under_layer=under).numpy())
 
 
+def test_a_coat_whose_sleeves_are_lit_brighter_than_its_skirts_still_gives_its_back():
+    """Most of each sleeve lit (0.25 brighter than the brown, the medians out of tolerance): with a
+    share of the arms within the tolerance of the layer's median (``coat_arm_share``) the colour is
+    the median of those and the layer's (a float64 reference), and the back takes it; under the
+    share (sleeves with 6 % in the brown), with the share rule off, and for bare arms: none."""
+    from reconstruct.appearance.wrap_fill import coat_colour
+
+    brown = np.array([0.66, 0.46, 0.33])
+    pos, parts, seen, col, under, back, _, light = _open_coat(brown)
+    arm = np.isin(parts, [PART_INDEX["upperarm.L"], PART_INDEX["upperarm.R"]])
+    lit = arm & (pos[:, 2] > 1.29)  # the upper 70 % of each sleeve
+    col[lit] = brown + 0.25
+    cfg = WrapFillConfig(smooth_sweeps=0)
+    layer = (parts == GARMENT_PART) & seen
+    assert (np.abs(np.median(col[arm & seen], 0) - np.median(col[layer], 0)) > cfg.palette_tolerance).any()
+    near = arm & seen & (np.abs(col - np.median(col[layer], 0)) <= cfg.palette_tolerance).all(1)
+    want = np.median(col[near | layer].astype(np.float64), 0)
+    got = coat_colour(col, parts, seen, cfg)
+    assert got is not None and np.abs(got - want).max() < 1e-12
+    out = wrap_fill_colors(pos, parts, seen, col, None, cfg, under_layer=under).numpy()
+    assert np.abs(out[back] - want).max() < 1e-6
+    assert coat_colour(col, parts, seen, dataclasses.replace(cfg, coat_arm_share=0.0)) is None
+    mostly = col.copy()
+    mostly[arm & ~lit & (np.arange(len(pos)) % 5 != 0)] = brown + 0.25  # 6 % of each sleeve in the brown
+    assert 0 < (arm & seen & (np.abs(mostly - brown) <= 0.12).all(1)).sum() < 0.2 * (arm & seen).sum()
+    assert coat_colour(mostly, parts, seen, cfg) is None
+    bare = col.copy()
+    bare[arm] = np.array([0.85, 0.62, 0.50])
+    assert coat_colour(bare, parts, seen, cfg) is None
+
+
 def _photo_of(pos, colours, front, strands_to=None, scale=100.0, size=(110, 70), top=1.80):
     """A frontal orthographic picture (``scale`` px per metre, row 0 at z = ``top``, the middle column
     at x = 0) of the ``front`` Gaussians in ``colours``, their pixels grown by one to close the gaps,
