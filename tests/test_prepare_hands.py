@@ -97,6 +97,11 @@ def test_gate_takes_hands_and_refuses_lines_and_strangers():
     # nothing found, or the frame without a person: nothing taken
     det = _detections([np.stack([cases[0], right])] * 2, [[False, True], [True, True]], frames_found=[True, False])
     np.testing.assert_array_equal(taken_hands(det), [[False, True], [False, False]])
+    # 0.9 palm lengths off: taken (a mirrored photo's hand came out 0.82 off); 1.2: refused
+    near = _hand((100.0 + 18.0 / np.sqrt(2), 100.0 + 18.0 / np.sqrt(2)), (1, 1), 0.6)
+    far = _hand((100.0 + 24.0 / np.sqrt(2), 100.0 + 24.0 / np.sqrt(2)), (1, 1), 0.6)
+    det = _detections([np.stack([near, right]), np.stack([far, right])], np.ones((2, 2), bool))
+    np.testing.assert_array_equal(taken_hands(det)[:, 0], [True, False])
     # the thresholds are the gate's
     loose = HandGate(min_spread=0.01, max_wrist_offset=3.0, min_palm_px=0.5)
     det = _detections([np.stack([c, right]) for c in cases], np.ones((4, 2), bool))
