@@ -1204,6 +1204,47 @@ def test_front_only_head_whose_middle_is_mostly_hair_takes_the_face_from_the_han
     np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen, gloved, None).numpy()[head], off[head])
 
 
+def _head_and_hands(left_colour, right_seen=5):
+    """The front-only head (a face of SKIN, hair) and two hands (small tubes at x = +-0.3 m): the
+    left's front half seen in ``left_colour``, the right with only ``right_seen`` seen Gaussians,
+    in the same colour (a hand a photo hid, whose fitted few texels drew a coat)."""
+    pos, th, seen, truth = front_only_head()
+    col = np.where(seen[:, None], truth, 0.5)
+    parts = [np.full(len(pos), PART_INDEX["head"])]
+    P, C, S = [pos], [col], [seen]
+    for x, name in ((0.3, "hand.L"), (-0.3, "hand.R")):
+        hp, hth = cylinder(radius=0.03, height=0.08, n_theta=24, n_z=12, z0=1.0)
+        hs = np.abs(np.degrees(hth)) <= 80 if name == "hand.L" else np.arange(len(hp)) < right_seen
+        P.append(hp + [x, 0.0, 0.0])
+        C.append(np.where(hs[:, None], left_colour, 0.5))
+        S.append(hs)
+        parts.append(np.full(len(hp), PART_INDEX[name]))
+    return np.concatenate(P), np.concatenate(parts), np.concatenate(S), np.concatenate(C)
+
+
+def test_a_hand_the_photo_hid_takes_the_faces_skin_not_its_twins_coat():
+    """The right hand has 5 seen Gaussians and borrows the left's, all a coat's green: its unseen
+    ones take the face's skin (the head's face cluster); with the rule off, its twin's green. A
+    seen left hand of skin is borrowed as before; with no face the rule has nothing to give."""
+    coat = np.array([0.38, 0.40, 0.32])
+    pos, parts, seen, col = _head_and_hands(coat)
+    right = (parts == PART_INDEX["hand.R"]) & ~seen
+    out = wrap_fill_colors(pos, parts, seen, col, None).numpy()
+    assert np.abs(out[right] - SKIN).max() < 1e-6
+    off = wrap_fill_colors(pos, parts, seen, col, None, WrapFillConfig(hidden_hand_parts=())).numpy()
+    assert np.abs(off[right] - coat).max(1).mean() < 0.05  # the case is real
+    np.testing.assert_array_equal(out[parts != PART_INDEX["hand.R"]], off[parts != PART_INDEX["hand.R"]])
+    pos, parts, seen, col = _head_and_hands(SKIN * 0.9)
+    np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen, col, None).numpy(),
+                                  wrap_fill_colors(pos, parts, seen, col, None,
+                                                   WrapFillConfig(hidden_hand_parts=())).numpy())
+    pos, parts, seen, col = _head_and_hands(coat)
+    no_face = WrapFillConfig(hair_min_share=1.1)  # the hair rule stands down: no face cluster
+    np.testing.assert_array_equal(wrap_fill_colors(pos, parts, seen, col, None, no_face).numpy(),
+                                  wrap_fill_colors(pos, parts, seen, col, None,
+                                                   dataclasses.replace(no_face, hidden_hand_parts=())).numpy())
+
+
 def test_skin_reference_is_a_warm_median_of_enough_hand_gaussians():
     from reconstruct.appearance.hair import SKIN_MIN_COUNT, skin_reference
     n = SKIN_MIN_COUNT

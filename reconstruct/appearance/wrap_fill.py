@@ -82,7 +82,7 @@ from scipy.spatial import cKDTree
 from ..avatar.garment_layer import GARMENT_PART, GARMENT_PART_NAME
 from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
 from .cut_fill import apply_cut_colors
-from .hair import face_coloured, hair_and_face, hair_covered, hair_sources, skin_reference
+from .hair import SKIN_WARMTH, face_coloured, hair_and_face, hair_covered, hair_sources, skin_reference
 from .long_hair import HANG_SHARE, down_the_middle, face_middle, hair_back_colors, hung_from_above, smooth_cover
 from .periodic_fill import continue_layer
 
@@ -143,6 +143,13 @@ class WrapFillConfig:
     # sleeve-green ones of the left; its back came out white, and the torso's upper back, filled
     # from its neighbours, with it. A pair of sleeves is one garment's
     twin_share: float = 0.25
+    # hands a photo hides (folded arms, pockets): one of these parts with fewer than ``twin_below``
+    # trusted Gaussians whose sources (its own, or its twin's) are not skin-warm (R >= G >= B, R - B
+    # at least ``hair.SKIN_WARMTH``) takes the face's skin colour (the seen head's face cluster,
+    # ``hair.hair_and_face``) when that is warm: the green-coat photo's right hand, under her folded
+    # arms, borrowed the left hand's 485 trusted Gaussians, all the coat's green where the fitted
+    # hand lay over the coat, and walked as a green mitten. () : off
+    hidden_hand_parts: tuple[str, ...] = ("hand.L", "hand.R")
     smooth_sweeps: int = 2
     # parts the video never saw behind their centre (``behind_share``, below: a photo, a video
     # that never turned): their band is the silhouette's sides only,
@@ -763,6 +770,12 @@ def _given(positions, parts, seen, colors, normals, hair_seen, surface_normals, 
                   surf, ul, np.ones(len(pos), bool) if ul is None else ul < 0)
 
 
+def _warm(colour: np.ndarray) -> bool:
+    """A skin-like colour: R >= G >= B and R - B at least ``hair.SKIN_WARMTH``."""
+    r, g, b = colour
+    return bool(r >= g >= b and r - b >= SKIN_WARMTH)
+
+
 def _skin_and_front_hair(g: _Given, cfg: WrapFillConfig):
     """(the hands' skin colour or None, ``_front_hair`` or None): which of the head's colour clusters
     is the face (``hair.py``), and the hair a photo's head shows round the face."""
@@ -857,6 +870,10 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     # shows round the face: its colours for the parts it falls over (``hair_over_parts``)
     skin, front_hair = _skin_and_front_hair(g, cfg)
     hair_palette = None if front_hair is None or not cfg.hair_over_parts else col[front_hair[0]]
+    face_skin = None  # the face's colour, for hands a photo hid (``hidden_hand_parts``)
+    if front_hair is not None and cfg.hidden_hand_parts and len(front_hair[1]):
+        face_skin = np.median(col[front_hair[1]], axis=0)
+        face_skin = face_skin if _warm(face_skin) else None
     over_hair = np.zeros(len(pos), bool)  # seen Gaussians in the hair's colour that are no source
     mirrored_across = np.zeros(len(pos), bool)  # a face's unseen front given its other side (``face_mirror_parts``)
     from_images = np.zeros(len(pos), bool)  # unseen Gaussians given what the images show there (``occluded_parts``)
@@ -886,6 +903,11 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
             if len(tw) >= twin_min and (len(src) < twin_min or len(src) < cfg.twin_share * len(tw)):
                 src = tw
                 src_pos = pos[tw] * np.array([-1.0, 1.0, 1.0])
+        if name in cfg.hidden_hand_parts and (seen[members].sum() < twin_min) and face_skin is not None:
+            if not len(src) or not _warm(np.median(col[src], axis=0)):  # a hand the photo hid
+                out[todo] = face_skin
+                filled[todo] = True
+                continue
         if len(src) < cfg.k:
             continue  # left to the fallback below
         # 1. the boundary band: seen Gaussians of the part near its unseen ones -- on a part never
