@@ -92,8 +92,14 @@ def skin_reference(hand_colours: np.ndarray) -> np.ndarray | None:
     if len(hand_colours) < SKIN_MIN_COUNT:
         return None
     ref = np.median(np.asarray(hand_colours, np.float64), axis=0)
-    r, g, b = ref
-    return ref if (r >= g >= b and r - b >= SKIN_WARMTH) else None
+    return ref if is_warm(ref) else None
+
+
+def is_warm(colour: np.ndarray) -> bool:
+    """A skin-like colour (3,): R >= G >= B and R - B at least ``SKIN_WARMTH`` (a glove in black,
+    grey or green is not)."""
+    r, g, b = colour
+    return bool(r >= g >= b and r - b >= SKIN_WARMTH)
 
 
 def _core(src_pos: np.ndarray, label: np.ndarray) -> np.ndarray:

@@ -82,7 +82,7 @@ from scipy.spatial import cKDTree
 from ..avatar.garment_layer import GARMENT_PART, GARMENT_PART_NAME
 from ..body.parts import MIRROR, PART_INDEX, PART_NAMES
 from .cut_fill import apply_cut_colors
-from .hair import SKIN_WARMTH, face_coloured, hair_and_face, hair_covered, hair_sources, skin_reference
+from .hair import face_coloured, hair_and_face, hair_covered, hair_sources, is_warm, skin_reference
 from .long_hair import HANG_SHARE, down_the_middle, face_middle, hair_back_colors, hung_from_above, smooth_cover
 from .periodic_fill import continue_layer
 
@@ -144,8 +144,8 @@ class WrapFillConfig:
     # from its neighbours, with it. A pair of sleeves is one garment's
     twin_share: float = 0.25
     # hands a photo hides (folded arms, pockets): one of these parts with fewer than ``twin_below``
-    # trusted Gaussians whose sources (its own, or its twin's) are not skin-warm (R >= G >= B, R - B
-    # at least ``hair.SKIN_WARMTH``) takes the face's skin colour (the seen head's face cluster,
+    # trusted Gaussians whose sources (its own, or its twin's) are not skin-warm (``hair.is_warm``)
+    # takes the face's skin colour (the seen head's face cluster,
     # ``hair.hair_and_face``) when that is warm: the green-coat photo's right hand, under her folded
     # arms, borrowed the left hand's 485 trusted Gaussians, all the coat's green where the fitted
     # hand lay over the coat, and walked as a green mitten. () : off
@@ -679,9 +679,7 @@ def coat_colour(col: np.ndarray, parts: np.ndarray, seen: np.ndarray, cfg: WrapF
     near = (np.abs(col[arm_ids] - skirts) <= cfg.palette_tolerance).all(1)
     if cfg.coat_arm_share <= 0 or near.sum() < cfg.k or near.mean() < cfg.coat_arm_share:
         return None
-    arms = np.zeros_like(arms)
-    arms[arm_ids[near]] = True
-    return np.median(col[arms | layer], 0)
+    return np.median(np.r_[col[arm_ids[near]], col[layer]], 0)
 
 
 def _hair_down_the_back(pos: np.ndarray, parts: np.ndarray, seen: np.ndarray, done: np.ndarray,
@@ -768,12 +766,6 @@ def _given(positions, parts, seen, colors, normals, hair_seen, surface_normals, 
             raise ValueError(f"wrap_fill_colors: under_layer must have shape ({len(pos)},), found {ul.shape}")
     return _Given(pos, _as_np(colors), parts, seen, None if hair_seen is None else _as_np(hair_seen, bool) | seen,
                   surf, ul, np.ones(len(pos), bool) if ul is None else ul < 0)
-
-
-def _warm(colour: np.ndarray) -> bool:
-    """A skin-like colour: R >= G >= B and R - B at least ``hair.SKIN_WARMTH``."""
-    r, g, b = colour
-    return bool(r >= g >= b and r - b >= SKIN_WARMTH)
 
 
 def _skin_and_front_hair(g: _Given, cfg: WrapFillConfig):
@@ -873,7 +865,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
     face_skin = None  # the face's colour, for hands a photo hid (``hidden_hand_parts``)
     if front_hair is not None and cfg.hidden_hand_parts and len(front_hair[1]):
         face_skin = np.median(col[front_hair[1]], axis=0)
-        face_skin = face_skin if _warm(face_skin) else None
+        face_skin = face_skin if is_warm(face_skin) else None
     over_hair = np.zeros(len(pos), bool)  # seen Gaussians in the hair's colour that are no source
     mirrored_across = np.zeros(len(pos), bool)  # a face's unseen front given its other side (``face_mirror_parts``)
     from_images = np.zeros(len(pos), bool)  # unseen Gaussians given what the images show there (``occluded_parts``)
@@ -904,7 +896,7 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
                 src = tw
                 src_pos = pos[tw] * np.array([-1.0, 1.0, 1.0])
         if name in cfg.hidden_hand_parts and (seen[members].sum() < twin_min) and face_skin is not None:
-            if not len(src) or not _warm(np.median(col[src], axis=0)):  # a hand the photo hid
+            if not len(src) or not is_warm(np.median(col[src], axis=0)):  # a hand the photo hid
                 out[todo] = face_skin
                 filled[todo] = True
                 continue
