@@ -746,6 +746,55 @@ def test_a_low_row_above_the_hem_is_cloth_behind_a_hand(layered):
             m.layer_opacity.copy_(saved_op)
 
 
+def test_a_low_band_above_opaque_cloth_is_not_the_hem(layered):
+    """Two low rows whose rows 3 cm down are low too (a hand and a clutch at a tilted photo's
+    waist), but with 6 cm of opaque rows under them: not the hem. They take the lower of the most
+    opaque rows above and below, the opaque rows keep theirs, and the real hem below empties the
+    rest. With the band's rows taken for the hem, the whole back under them was emptied."""
+    from reconstruct.train.unseen_fill import fill_unseen_layer_opacity
+
+    t = layered
+    m, state = t.model, t.state
+    N = m.num_body
+    R, C = m.layer.grid_shape
+    assert R >= 7, R
+    zs = m.layer.positions.reshape(R, -1, 3)[:, :, 2].double().mean(1)
+    assert 0.05 <= float(zs[4] - zs[5]) + 1e-9 and float(zs[2] - zs[3]) > 0.03  # rows 6 cm apart
+    rows = m.layer_rc[:, 0]
+    cols = m.layer_rc[:, 1]
+    saved_seen, saved_op = state.seen.clone(), m.layer_opacity.detach().clone()
+    profile = torch.full((R,), 0.05)
+    profile[0], profile[1] = 0.9, 0.99
+    profile[2:4] = 0.2  # the low band
+    profile[4:6] = torch.tensor([0.9, 0.95])  # 6 cm of opaque cloth under it
+    try:
+        with torch.no_grad():
+            m.layer_opacity.copy_(torch.logit(profile[rows]) / m.config.garment_opacity_gain)
+        trained = cols < C // 2
+        state.seen[:] = False
+        fill_unseen_layer_opacity(state, trained, erosion=0)
+        got = m.opacities().detach()[N:]
+        per_row = torch.stack([got[(rows == r) & ~trained].mean() for r in range(R)])
+        want = profile.clone()
+        want[2:4] = 0.95  # min(0.99 above, 0.95 below)
+        want[6:] = 1e-3
+        assert torch.allclose(per_row, want, atol=1e-4), (per_row, want)
+        # one opaque row under the band is not cloth enough: the band is the hem, as before
+        profile[5] = 0.05
+        with torch.no_grad():
+            m.layer_opacity.copy_(torch.logit(profile[rows]) / m.config.garment_opacity_gain)
+        fill_unseen_layer_opacity(state, trained, erosion=0)
+        got = m.opacities().detach()[N:]
+        per_row = torch.stack([got[(rows == r) & ~trained].mean() for r in range(R)])
+        want = torch.full((R,), 1e-3)
+        want[0], want[1], want[2:5] = 0.9, 0.99, 0.2
+        assert torch.allclose(per_row, want, atol=1e-4), (per_row, want)
+    finally:
+        state.seen.copy_(saved_seen)
+        with torch.no_grad():
+            m.layer_opacity.copy_(saved_op)
+
+
 def test_the_model_finds_the_legs_under_its_layers_hem(layered):
     """``model_layer_shows_body`` on the model's own Gaussians: skin-coloured legs, grey cloth whose
     seen bottom row shows the legs' colour; only that row is flagged, and no body Gaussian."""

@@ -284,6 +284,9 @@ _OPACITY_MARGIN = 1e-3
 # a row of the layer whose trained Gaussians' median opacity is below this is empty air
 _EMPTY_LAYER_OPACITY = 0.1
 _HEM_RUN = 0.03  # metres under a hem row whose trained cloth must all be below one half
+# metres of rows at least one half opaque, one after another, below a low band that make it a band
+# of the cloth (a hand at the waist), not the hem
+_CLOTH_RUN = 0.05
 
 
 def _in_some_frame(state: AvatarState, data: TrainingData, flags: dict) -> dict[str, torch.Tensor]:
@@ -425,7 +428,7 @@ def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, eros
     stands; it keeps its learned opacity) and not painted seen the median opacity of the trained
     ones (eroded by ``erosion`` grid steps) in its grid row, or in the nearest row that has any;
     below the hem (the first row under the most opaque one with a median below 0.5 whose next row
-    and rows 3 cm under it are too) those medians are made non-increasing down the rows (no ring of
+    and rows 3 cm under it are too, and under which no 5 cm of rows are 0.5 or more) those medians are made non-increasing down the rows (no ring of
     cloth below the hem), a row above it below 0.5 takes the lower of the most opaque rows above
     and below it (cloth behind a hand), and medians below 0.1 (cloth the alpha loss was emptying)
     are 0. Returns how many were set (0 without a layer, or when none or all are trained)."""
@@ -467,14 +470,27 @@ def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, eros
     # is the first row under the most opaque one below one half whose next row and rows within
     # ``_HEM_RUN`` under it are below one half too: on the grey-skirt photo a single row at the
     # waist, its front under the hand, took 0.37 from 9 Gaussians, and as the hem it emptied the
-    # skirt's whole back below it.
+    # skirt's whole back below it. Nor is a low band the hem when ``_CLOTH_RUN`` of opaque rows
+    # follow it: the same photo turned by 9 degrees had eight low rows at the waist (11 cm, under
+    # the hand and her clutch) above 34 cm of opaque skirt.
     top = int(per_row.argmax())
     zs = model.layer.positions.reshape(R, -1, 3)[:, :, 2].double().mean(1)
     low = per_row < 0.5
 
+    def cloth_below(r: int) -> bool:  # a run of opaque rows under r at least _CLOTH_RUN tall
+        start = None
+        for k in range(r, R):
+            if low[k]:
+                start = None
+            else:
+                start = k if start is None else start
+                if zs[start] - zs[k] >= _CLOTH_RUN:
+                    return True
+        return False
+
     def hem_like(r: int) -> bool:
         under = (zs[r] - zs[r:] <= _HEM_RUN) | (torch.arange(r, R) <= r + 1)
-        return bool(low[r:][under].all())
+        return bool(low[r:][under].all()) and not cloth_below(r)
 
     hem = next((r for r in range(top, R) if hem_like(r)), None)
     if hem is not None:
