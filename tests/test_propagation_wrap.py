@@ -216,6 +216,34 @@ def test_a_front_only_layers_rows_read_the_sources_before_erosion():
     assert np.abs(fill3(None)[hips & back] - WHITE).max(1).max() < 0.05
 
 
+def test_a_front_only_layers_row_seen_on_one_side_keeps_its_own_colour():
+    """A photo's layer over a blouse and a high-waisted skirt: the skirt's top rows are seen on
+    one side of the layer only (the other hidden), and the rows just above them show the blouse's
+    white on both sides. No colour of those rows is matched on the other side within the palette's
+    height, so the both-sides test drops them all; the rows keep their own navy round the back
+    (with the test alone they took the white of the rows above: the long-skirt photo at 380 px)."""
+    R, C = 30, 92
+    WHITE_, NAVY = np.array([0.9, 0.9, 0.93]), np.array([0.05, 0.1, 0.3])
+    th = 2 * np.pi * np.arange(C) / C - np.pi
+    z = 1.0 - 0.014 * np.arange(R)
+    pos = np.stack([np.broadcast_to(0.25 * np.sin(th), (R, C)), np.broadcast_to(-0.25 * np.cos(th), (R, C)),
+                    np.broadcast_to(z[:, None], (R, C))], -1).reshape(-1, 3)
+    row = np.arange(R)[:, None]
+    front = np.abs(np.degrees(th)) <= 85
+    col = np.where((row < 10)[..., None], WHITE_, NAVY) * np.ones((R, C, 1))
+    one_side = (row >= 10) & (row < 20)
+    seen = front & ~(one_side & (th > 0))  # the skirt's top rows seen on one side of the middle only
+    parts = np.full(R * C, GARMENT_PART)
+    cfg = WrapFillConfig(smooth_sweeps=0)
+    out = wrap_fill_colors(pos, parts, seen.reshape(-1), col.reshape(-1, 3), None, cfg,
+                           layer_grid=(R, C, 1)).numpy().reshape(R, C, 3)
+    back = ~front & np.ones((R, 1), bool)
+    skirt_top = back & one_side
+    np.testing.assert_allclose(out[skirt_top], np.tile(NAVY, (skirt_top.sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(out[back & (row < 10)], np.tile(WHITE_, ((back & (row < 10)).sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(out[back & (row >= 20)], np.tile(NAVY, ((back & (row >= 20)).sum(), 1)), atol=1e-6)
+
+
 def test_a_front_only_layers_rows_are_smoothed_where_alike():
     """Shading from row to row (within the palette tolerance) is averaged down the layer; stripes
     (further apart than it) are not."""
