@@ -220,8 +220,9 @@ def test_a_front_only_layers_row_seen_on_one_side_keeps_its_own_colour():
     """A photo's layer over a blouse and a high-waisted skirt: the skirt's top rows are seen on
     one side of the layer only (the other hidden), and the rows just above them show the blouse's
     white on both sides. No colour of those rows is matched on the other side within the palette's
-    height, so the both-sides test drops them all; the rows keep their own navy round the back
-    (with the test alone they took the white of the rows above: the long-skirt photo at 380 px)."""
+    height, so the both-sides test drops them all but a sleeve's white at their ends; the rows keep
+    their own navy round the back (with the test alone they took the white: the long-skirt photo at
+    380 px)."""
     R, C = 30, 92
     WHITE_, NAVY = np.array([0.9, 0.9, 0.93]), np.array([0.05, 0.1, 0.3])
     th = 2 * np.pi * np.arange(C) / C - np.pi
@@ -233,6 +234,8 @@ def test_a_front_only_layers_row_seen_on_one_side_keeps_its_own_colour():
     col = np.where((row < 10)[..., None], WHITE_, NAVY) * np.ones((R, C, 1))
     one_side = (row >= 10) & (row < 20)
     seen = front & ~(one_side & (th > 0))  # the skirt's top rows seen on one side of the middle only
+    edge = np.flatnonzero(front)[:3]
+    col[10:20, edge] = WHITE_  # and a sleeve's white at their ends: it passes the test, 3 of a row's 43
     parts = np.full(R * C, GARMENT_PART)
     cfg = WrapFillConfig(smooth_sweeps=0)
     out = wrap_fill_colors(pos, parts, seen.reshape(-1), col.reshape(-1, 3), None, cfg,

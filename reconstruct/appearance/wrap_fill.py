@@ -996,12 +996,14 @@ def wrap_fill_colors(positions, parts, seen, colors, neighbours: np.ndarray | No
         if fills_by_rows:
             row_of = lambda i: (i - members[0]) // layer_grid[1]  # noqa: E731
             if by_rows:
-                # a row none of whose colours the other side shows keeps its own: on the
-                # long-skirt photo at 380 px the navy of the layer's top rows was seen on one side
-                # only (beside white sleeves on the other), and those rows' backs took the band's white
+                # a row fewer than ``k`` of whose colours the other side shows keeps its own: on
+                # the long-skirt photo at 380 px the navy of the layer's top rows was seen on one
+                # side only (beside white sleeves on the other); none of it, or one to five white
+                # Gaussians at the rows' ends, passed, and those rows' backs took the white
                 src_rows = row_of(src)
                 pooled = np.bincount(src_rows[pool], minlength=layer_grid[0])
-                pool = pool | (pooled[src_rows] == 0)
+                own = np.bincount(src_rows, minlength=layer_grid[0])
+                pool = pool | ((pooled < cfg.k) & (pooled < own))[src_rows]
                 rows_s, pos_s, col_s = src_rows[pool], src_pos[pool], col[src][pool]
                 low = _row_median(row_of(todo), pos[todo], rows_s, pos_s, col_s, rows_s, pos_s, col_s, len(src))
                 low = _row_profile(row_of(todo), low, cfg.layer_profile_rows, cfg.palette_tolerance,
