@@ -708,34 +708,41 @@ def test_untrained_layer_opacity_has_no_ring_below_the_hem(layered):
         with torch.no_grad():
             m.layer_opacity.copy_(saved_op)
 
+def _filled_row_opacities(t, profile: torch.Tensor) -> torch.Tensor:
+    """The layer's opacities set to ``profile`` (R,) by row, the left half of its columns trained,
+    nothing seen, then ``fill_unseen_layer_opacity``: (R,) the mean opacity of each row's untrained
+    Gaussians. The caller restores the model and the seen flags."""
+    from reconstruct.train.unseen_fill import fill_unseen_layer_opacity
+
+    m = t.model
+    R, C = m.layer.grid_shape
+    rows, cols = m.layer_rc[:, 0], m.layer_rc[:, 1]
+    with torch.no_grad():
+        m.layer_opacity.copy_(torch.logit(profile[rows]) / m.config.garment_opacity_gain)
+    trained = cols < C // 2
+    t.state.seen[:] = False
+    fill_unseen_layer_opacity(t.state, trained, erosion=0)
+    got = m.opacities().detach()[m.num_body:]
+    return torch.stack([got[(rows == r) & ~trained].mean() for r in range(R)])
+
+
 def test_a_low_row_above_the_hem_is_cloth_behind_a_hand(layered):
     """A row below one half between opaque rows (its front under a hand) is not the hem: the
     untrained Gaussians there take the lower of the most opaque rows above and below it, and the
     rows under it keep theirs down to the real hem (whose rows 3 cm down are all below one half)."""
-    from reconstruct.train.unseen_fill import fill_unseen_layer_opacity
-
     t = layered
     m, state = t.model, t.state
-    N = m.num_body
-    R, C = m.layer.grid_shape
+    R = m.layer.grid_shape[0]
     hem = R // 2
     dip = (2 + hem) // 2
     assert 2 < dip < hem
-    rows = m.layer_rc[:, 0]
-    cols = m.layer_rc[:, 1]
     saved_seen, saved_op = state.seen.clone(), m.layer_opacity.detach().clone()
     profile = torch.full((R,), 0.9)
     profile[2] = 0.99
     profile[dip] = 0.3
     profile[hem:] = 0.05
     try:
-        with torch.no_grad():
-            m.layer_opacity.copy_(torch.logit(profile[rows]) / m.config.garment_opacity_gain)
-        trained = cols < C // 2
-        state.seen[:] = False
-        fill_unseen_layer_opacity(state, trained, erosion=0)
-        got = m.opacities().detach()[N:]
-        per_row = torch.stack([got[(rows == r) & ~trained].mean() for r in range(R)])
+        per_row = _filled_row_opacities(t, profile)
         want = profile.clone()
         want[dip] = 0.9  # min(0.99 above, 0.9 below)
         want[hem:] = 1e-3
@@ -751,41 +758,26 @@ def test_a_low_band_above_opaque_cloth_is_not_the_hem(layered):
     waist), but with 6 cm of opaque rows under them: not the hem. They take the lower of the most
     opaque rows above and below, the opaque rows keep theirs, and the real hem below empties the
     rest. With the band's rows taken for the hem, the whole back under them was emptied."""
-    from reconstruct.train.unseen_fill import fill_unseen_layer_opacity
-
     t = layered
     m, state = t.model, t.state
-    N = m.num_body
-    R, C = m.layer.grid_shape
+    R = m.layer.grid_shape[0]
     assert R >= 7, R
     zs = m.layer.positions.reshape(R, -1, 3)[:, :, 2].double().mean(1)
     assert 0.05 <= float(zs[4] - zs[5]) + 1e-9 and float(zs[2] - zs[3]) > 0.03  # rows 6 cm apart
-    rows = m.layer_rc[:, 0]
-    cols = m.layer_rc[:, 1]
     saved_seen, saved_op = state.seen.clone(), m.layer_opacity.detach().clone()
     profile = torch.full((R,), 0.05)
     profile[0], profile[1] = 0.9, 0.99
     profile[2:4] = 0.2  # the low band
     profile[4:6] = torch.tensor([0.9, 0.95])  # 6 cm of opaque cloth under it
     try:
-        with torch.no_grad():
-            m.layer_opacity.copy_(torch.logit(profile[rows]) / m.config.garment_opacity_gain)
-        trained = cols < C // 2
-        state.seen[:] = False
-        fill_unseen_layer_opacity(state, trained, erosion=0)
-        got = m.opacities().detach()[N:]
-        per_row = torch.stack([got[(rows == r) & ~trained].mean() for r in range(R)])
+        per_row = _filled_row_opacities(t, profile)
         want = profile.clone()
         want[2:4] = 0.95  # min(0.99 above, 0.95 below)
         want[6:] = 1e-3
         assert torch.allclose(per_row, want, atol=1e-4), (per_row, want)
         # one opaque row under the band is not cloth enough: the band is the hem, as before
         profile[5] = 0.05
-        with torch.no_grad():
-            m.layer_opacity.copy_(torch.logit(profile[rows]) / m.config.garment_opacity_gain)
-        fill_unseen_layer_opacity(state, trained, erosion=0)
-        got = m.opacities().detach()[N:]
-        per_row = torch.stack([got[(rows == r) & ~trained].mean() for r in range(R)])
+        per_row = _filled_row_opacities(t, profile)
         want = torch.full((R,), 1e-3)
         want[0], want[1], want[2:5] = 0.9, 0.99, 0.2
         assert torch.allclose(per_row, want, atol=1e-4), (per_row, want)

@@ -162,6 +162,16 @@ def test_a_front_only_layer_is_filled_by_rows():
     np.testing.assert_allclose(out[seen], col[seen].astype(np.float32), atol=1e-6)
 
 
+def _skirt_grid(R: int, C: int) -> tuple[np.ndarray, np.ndarray]:
+    """A layer's grid as a photo's skirt: (C,) angles from the front (-pi at column 0) and (R*C, 3)
+    row-major positions on a 25 cm tube, rows 1.4 cm apart down from 1 m."""
+    th = 2 * np.pi * np.arange(C) / C - np.pi
+    z = 1.0 - 0.014 * np.arange(R)
+    pos = np.stack([np.broadcast_to(0.25 * np.sin(th), (R, C)), np.broadcast_to(-0.25 * np.cos(th), (R, C)),
+                    np.broadcast_to(z[:, None], (R, C))], -1).reshape(-1, 3)
+    return th, pos
+
+
 def test_a_front_only_layers_rows_read_the_sources_before_erosion():
     """A photo's cloth is speckled: light first hits (sheen) between dark folds. The trusted flags,
     eroded, keep the dark folds' middles only; the rows' medians are read on ``row_seen`` (the
@@ -171,10 +181,7 @@ def test_a_front_only_layers_rows_read_the_sources_before_erosion():
     the trusted flags show nowhere near (``row_seen_rows``): a sleeve hanging in front."""
     R, C = 30, 92
     NAVY, FOLD = np.array([0.05, 0.1, 0.3]), np.array([0.01, 0.01, 0.03])
-    th = 2 * np.pi * np.arange(C) / C - np.pi
-    z = 1.0 - 0.014 * np.arange(R)
-    pos = np.stack([np.broadcast_to(0.25 * np.sin(th), (R, C)), np.broadcast_to(-0.25 * np.cos(th), (R, C)),
-                    np.broadcast_to(z[:, None], (R, C))], -1).reshape(-1, 3)
+    th, pos = _skirt_grid(R, C)
     front = np.broadcast_to(np.abs(np.degrees(th)) <= 85, (R, C))
     fold = np.broadcast_to((np.arange(C) // 5) % 3 == 0, (R, C))  # a third of the columns, in 5-wide folds
     col = np.where(fold[..., None], FOLD, NAVY).reshape(-1, 3)
@@ -224,18 +231,15 @@ def test_a_front_only_layers_row_seen_on_one_side_keeps_its_own_colour():
     their own navy round the back (with the test alone they took the white: the long-skirt photo at
     380 px)."""
     R, C = 30, 92
-    WHITE_, NAVY = np.array([0.9, 0.9, 0.93]), np.array([0.05, 0.1, 0.3])
-    th = 2 * np.pi * np.arange(C) / C - np.pi
-    z = 1.0 - 0.014 * np.arange(R)
-    pos = np.stack([np.broadcast_to(0.25 * np.sin(th), (R, C)), np.broadcast_to(-0.25 * np.cos(th), (R, C)),
-                    np.broadcast_to(z[:, None], (R, C))], -1).reshape(-1, 3)
+    NAVY = np.array([0.05, 0.1, 0.3])
+    th, pos = _skirt_grid(R, C)
     row = np.arange(R)[:, None]
     front = np.abs(np.degrees(th)) <= 85
-    col = np.where((row < 10)[..., None], WHITE_, NAVY) * np.ones((R, C, 1))
+    col = np.where((row < 10)[..., None], WHITE, NAVY) * np.ones((R, C, 1))
     one_side = (row >= 10) & (row < 20)
     seen = front & ~(one_side & (th > 0))  # the skirt's top rows seen on one side of the middle only
     edge = np.flatnonzero(front)[:3]
-    col[10:20, edge] = WHITE_  # and a sleeve's white at their ends: it passes the test, 3 of a row's 43
+    col[10:20, edge] = WHITE  # and a sleeve's white at their ends: it passes the test, 3 of a row's 43
     parts = np.full(R * C, GARMENT_PART)
     cfg = WrapFillConfig(smooth_sweeps=0)
     out = wrap_fill_colors(pos, parts, seen.reshape(-1), col.reshape(-1, 3), None, cfg,
@@ -243,7 +247,7 @@ def test_a_front_only_layers_row_seen_on_one_side_keeps_its_own_colour():
     back = ~front & np.ones((R, 1), bool)
     skirt_top = back & one_side
     np.testing.assert_allclose(out[skirt_top], np.tile(NAVY, (skirt_top.sum(), 1)), atol=1e-6)
-    np.testing.assert_allclose(out[back & (row < 10)], np.tile(WHITE_, ((back & (row < 10)).sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(out[back & (row < 10)], np.tile(WHITE, ((back & (row < 10)).sum(), 1)), atol=1e-6)
     np.testing.assert_allclose(out[back & (row >= 20)], np.tile(NAVY, ((back & (row >= 20)).sum(), 1)), atol=1e-6)
 
 
