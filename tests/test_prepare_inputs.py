@@ -504,11 +504,36 @@ def test_fill_holes_fills_small_enclosed_holes_only():
     m[20:23, 40:43] = 0.0  # 9 px: a segmenter mistake (< 1 % of 3,200 px)
     m[40:60, 35:65] = 0.0  # 600 px: a real gap (between arm and body)
     m[80:90, 30:40] = 0.0  # a notch open to the outside: not a hole
-    out, n = fill_holes(m)
-    assert n == 1 and out[21, 41] == 1.0 and out[50, 50] == 0.0 and out[85, 35] == 0.0
+    out, n, kept = fill_holes(m)
+    assert n == 1 and kept == 0 and out[21, 41] == 1.0 and out[50, 50] == 0.0 and out[85, 35] == 0.0
     others = np.zeros((100, 100), bool)
     others[:, 60:] = True
     assert remove_others(out, others)[:, 60:].max() == 0 and remove_others(out, others)[50, 32] == 1.0
+
+
+def test_a_small_hole_that_looks_like_the_wall_is_kept_one_like_the_person_is_filled():
+    """A cluttered wall behind a grey skirt and a skin arm: a small hole showing the wall's colours
+    (a narrow gap between the arm and the body) is kept; one in the skirt's grey (a dark fold the
+    segmenter missed) is filled, and so is every small hole without the image."""
+    rng = np.random.default_rng(1)
+    H, W = 120, 100
+    wall = rng.choice(np.array([[0.9, 0.1, 0.1], [0.1, 0.7, 0.6], [0.2, 0.2, 0.9], [0.95, 0.9, 0.2]]), (H, W))
+    image = wall.copy()
+    m = np.zeros((H, W), np.float32)
+    m[10:110, 30:70] = 1.0
+    image[10:110, 30:70] = [0.5, 0.5, 0.52]  # the skirt
+    image[10:110, 30:38] = [0.8, 0.6, 0.5]  # the arm
+    gap = (slice(40, 46), slice(38, 41))  # 18 px between the arm and the skirt: the wall shows
+    fold = (slice(80, 84), slice(50, 54))  # 16 px of a darker grey fold
+    m[gap] = 0.0
+    image[gap] = wall[gap]
+    m[fold] = 0.0
+    image[fold] = [0.42, 0.42, 0.44]
+    out, n, kept = fill_holes(m, image=image)
+    assert (n, kept) == (1, 1)
+    assert (out[gap] == 0.0).all() and (out[fold] == 1.0).all()
+    plain, n, kept = fill_holes(m)
+    assert (n, kept) == (2, 0) and (plain[gap] == 1.0).all()
 
 
 def _in_detector_python(tmp_path, name: str, body: str) -> dict:

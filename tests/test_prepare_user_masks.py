@@ -178,7 +178,8 @@ def test_prepare_takes_the_users_masks_as_they_are(synth, tmp_path):
                              crop=False, log=lambda m: None)
     assert plain["masks"]["source"] == "segmenter"
     first = read_scene(tmp_path / "plain").frames[0]
-    np.testing.assert_allclose(first.mask, fill_holes(synth.frames[0].mask)[0], atol=1e-6)
+    np.testing.assert_allclose(first.mask, fill_holes(synth.frames[0].mask, image=_u8(synth.frames[0].image))[0],
+                               atol=1e-6)
 
 
 def test_prepare_takes_a_cut_outs_alpha_unless_told_not_to(synth, tmp_path):

@@ -257,7 +257,7 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
         log(f"person masks: {mask_source} (taken as they are; the segmenter's are not used)")
     det = detector.detect(frames)
     t_det = time.perf_counter()
-    holes = 0
+    holes = holes_kept = 0
     if user is not None:
         det.raw_masks, det.refine_used = det.masks, None  # the report shows where the user's differ
         det.masks = user
@@ -266,13 +266,16 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
         for i in range(T):
             masks[i] = remove_others(masks[i], others[i])
             if fill_holes:
-                masks[i], n = fill_mask_holes(masks[i])
-                holes += n
+                masks[i], n, k = fill_mask_holes(masks[i], image=frames[i])
+                holes, holes_kept = holes + n, holes_kept + k
         det.masks = masks
         if holes:
             log(f"filled {holes} small {'hole' if holes == 1 else 'holes'} in the person masks (green in "
                 f"prepare_report.png); where one is background seen through a gap (between an arm and the "
                 f"body), the avatar will wear it: --no-fill-holes keeps them, --masks gives your own masks")
+        if holes_kept:
+            log(f"kept {holes_kept} small {'hole' if holes_kept == 1 else 'holes'} in the person masks that look "
+                f"like the background round the person (a gap between an arm and the body)")
     keep, dropped = person_frames(det)
     for d in dropped:
         pos = d.pop("position")
@@ -355,7 +358,7 @@ def prepare_video(video_path: str | os.PathLike, out: str | os.PathLike, *, dete
         "landmarks_at_cut_edges": at_edge,
         "masks": {"source": mask_source,
                   "refined_frames": None if kept.refine_used is None else int(kept.refine_used.sum()),
-                  "holes_filled": holes},
+                  "holes_filled": holes, "holes_kept": holes_kept},
         "detector": detector.describe() | kept.info,
         "camera": {"focal_px": fit.camera.fx, "focal_guess_px": fit.focal_guess,
                    "principal_point": [fit.camera.cx, fit.camera.cy],
