@@ -428,10 +428,10 @@ def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, eros
     stands; it keeps its learned opacity) and not painted seen the median opacity of the trained
     ones (eroded by ``erosion`` grid steps) in its grid row, or in the nearest row that has any;
     below the hem (the first row under the most opaque one with a median below 0.5 whose next row
-    and rows 3 cm under it are too, and under which no 5 cm of rows are 0.5 or more) those medians are made non-increasing down the rows (no ring of
-    cloth below the hem), a row above it below 0.5 takes the lower of the most opaque rows above
-    and below it (cloth behind a hand), and medians below 0.1 (cloth the alpha loss was emptying)
-    are 0. Returns how many were set (0 without a layer, or when none or all are trained)."""
+    and rows 3 cm under it are too, and under which no 5 cm of rows are 0.5 or more) those medians
+    are made non-increasing down the rows (no ring of cloth below the hem), a row above it below 0.5
+    takes the lower of the most opaque rows above and below it (cloth behind a hand), and medians
+    below 0.1 (cloth the alpha loss was emptying) are 0. Returns how many were set (0 without a layer, or when none or all are trained)."""
     model = state.model
     if model.layer is None:
         return 0
@@ -477,22 +477,21 @@ def fill_unseen_layer_opacity(state: AvatarState, trained: torch.Tensor, *, eros
     zs = model.layer.positions.reshape(R, -1, 3)[:, :, 2].double().mean(1)
     low = per_row < 0.5
 
-    def cloth_below(r: int) -> bool:  # a run of opaque rows under r at least _CLOTH_RUN tall
-        start = None
-        for k in range(r, R):
-            if low[k]:
-                start = None
-            else:
-                start = k if start is None else start
-                if zs[start] - zs[k] >= _CLOTH_RUN:
-                    return True
-        return False
+    # the last row of the lowest run of opaque rows at least ``_CLOTH_RUN`` tall: the hem is under it
+    cloth_end, start = -1, None
+    for k in range(R):
+        if low[k]:
+            start = None
+        else:
+            start = k if start is None else start
+            if zs[start] - zs[k] >= _CLOTH_RUN:
+                cloth_end = k
 
     def hem_like(r: int) -> bool:
         under = (zs[r] - zs[r:] <= _HEM_RUN) | (torch.arange(r, R) <= r + 1)
-        return bool(low[r:][under].all()) and not cloth_below(r)
+        return bool(low[r:][under].all())
 
-    hem = next((r for r in range(top, R) if hem_like(r)), None)
+    hem = next((r for r in range(max(top, cloth_end + 1), R) if hem_like(r)), None)
     if hem is not None:
         per_row[hem:] = torch.cummin(per_row[hem:], 0).values
     # A row above the hem below one half between more opaque ones (a hand or an arm in front of

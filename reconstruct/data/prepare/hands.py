@@ -12,9 +12,9 @@ A found hand is taken when it is a hand and it is this person's (``HandGate``): 
 at least ``min_spread`` of its palm's length (wrist to the middle knuckle; the hand model collapsed
 the can-holding hand into a line, 0.03, where turned hands on the photos of shared/real keep
 0.40-1.06), and its wrist lies within ``max_wrist_offset`` palm lengths of the pose's wrist (0.14-0.64
-on the same photos and their mirror images, 0.82 once). Where a hand is not taken, or the hand model did not run on the frame, the
-pose's index and pinky points are left out of the fit (visibility 0) and the hand keeps the forearm's
-direction, as before. Detections from a detector without a hand model (``hands`` None) are left as
+on the same photos and their mirror images, 0.82 once). Where a hand is not taken, or the hand model
+did not run on the frame, the pose's index and pinky points are left out of the fit (visibility 0)
+and the hand keeps the forearm's direction, as before. Detections from a detector without a hand model (``hands`` None) are left as
 they are.
 """
 
