@@ -60,6 +60,9 @@ def _describe_stage1(trainer) -> None:
     width, height = trainer.scene.image_size
     print(f"{trainer.state.num_gaussians} Gaussians, images {width}x{height}, {len(trainer.data)} training frames, "
           f"target {trainer.plan.describe()}", file=sys.stderr)
+    if trainer.refines_poses and not trainer.config.pose_refinement:
+        print("pose refinement on: the frames' poses are prepare's fit of a video (--set "
+              "pose_refinement_prepared=false keeps them as fitted)", file=sys.stderr)
 
 
 def _enter_stage2(trainer, run: RunFolder, stage2, allow_incomplete: bool):

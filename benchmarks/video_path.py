@@ -12,6 +12,10 @@ garment layer Stage I built, and the held-out frames' PSNR / SSIM at the end of 
         [--iters 700] [--threads 1] [--detector-python .venv-video/bin/python]
         [--pose-refinement] [--set KEY=VALUE ...]
 
+A prepared video's poses are refined by default (``Stage1Config.pose_refinement_prepared``): pass
+``--set pose_refinement_prepared=false`` for the fitted poses alone (``--pose-refinement`` changes
+nothing here since then).
+
 Each scene takes ~15 min on one core (prepare 3-4 min for 60 frames, 700 steps ~11 min). OUT/NAME.mp4,
 OUT/NAME_scene and OUT/NAME_run are kept; a scene whose run exists is only measured again.
 """

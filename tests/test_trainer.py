@@ -255,3 +255,35 @@ def test_the_studio_opens_on_the_device_asked_for(tiny_scene, tiny_config, tmp_p
         assert trainer.config.device == "cpu" and trainer.step_count == 1
     finally:
         lock.release()
+
+
+def test_prepared_videos_refine_their_poses_and_the_corrections_share_no_common_part(tiny_scene, tiny_config):
+    """A scene ``prepare`` fitted to a video refines its poses without being asked; a synthetic
+    scene (exact poses) and a photo (one frame) do not. The corrections of the frames trained so
+    far have a zero mean (RowAdam's centring); the frames no step drew keep none."""
+    import dataclasses
+
+    from reconstruct.train.trainer import refines_poses
+
+    video = dataclasses.replace(tiny_scene, meta={**tiny_scene.meta, "source": "video"})
+    photo = dataclasses.replace(video, frames=video.frames[:1], meta={**video.meta, "source": "image"})
+    assert refines_poses(video, tiny_config, 4)
+    assert not refines_poses(video, tiny_config, 1)
+    assert not refines_poses(photo, tiny_config, 1)
+    assert not refines_poses(tiny_scene, tiny_config, 4)
+    assert not refines_poses(video, dataclasses.replace(tiny_config, pose_refinement_prepared=False), 4)
+    assert refines_poses(tiny_scene, dataclasses.replace(tiny_config, pose_refinement=True), 4)
+
+    tiny_config.pose_refinement_start = 0.0
+    s = Trainer(video, tiny_config)
+    assert s.refines_poses and s.pose_optimizer is not None
+    for _ in range(3):
+        s.step()
+    steps = s.pose_optimizer.state[s.state.pose_delta]["step"]
+    drawn = steps > 0
+    assert 1 < int(drawn.sum()) <= 3
+    d = s.state.pose_delta.detach()
+    assert float(d[drawn].abs().max()) > 0
+    assert torch.allclose(d[drawn].mean(0), torch.zeros_like(d[0]), atol=1e-12)
+    assert float(d[~drawn].abs().max()) == 0.0
+    assert Trainer(tiny_scene, tiny_config).pose_optimizer is None

@@ -97,10 +97,19 @@ class Stage1Config(StageSettings):
     # optimiser (GaussianAvatar: Adam, decoder 3e-3, feature map 5e-4)
     lr_decoder: float = 3e-3
     lr_features: float = 5e-4
-    # per-frame pose refinement (paper: on for in-the-wild videos, off where poses are accurate)
+    # per-frame pose refinement (paper: on for in-the-wild videos, off where poses are accurate).
+    # ``pose_refinement`` turns it on for any scene; ``pose_refinement_prepared`` for the scenes
+    # ``prepare`` made from a video or a folder of frames (their poses are a fit; a photo has one
+    # frame, nothing to refine against), not for scenes with exact poses (docs/prepare.md)
     pose_refinement: bool = False
-    lr_pose: float = 5e-3
+    pose_refinement_prepared: bool = True
+    # each frame's correction its own Adam (train/row_adam.py); 5e-3 drew a skin patch on a real
+    # video's back, 1e-3 does not (docs/prepare.md, "Pose refinement")
+    lr_pose: float = 1e-3
     pose_refinement_start: float = 0.1  # fraction of the run before poses are optimised
+    # the corrections' mean over the trained frames held at zero (train/row_adam.py): they correct
+    # how the frames differ, the avatar keeps what they share
+    pose_refinement_centre: bool = True
     # at the end of the stage, the Gaussians no training view saw take the wrap-around fill's colour
     # of the seen surface (train/unseen_fill.py) instead of the decoder's guess for untrained
     # texels; those within fill_unseen_ring texels of a seen one keep their decoded colour

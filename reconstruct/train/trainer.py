@@ -39,6 +39,7 @@ from ..snapshot import Snapshot, SnapshotBox
 from .checkpoint import CHECKPOINT_NAME, CheckpointError, garment_layer_of, plain_scalars, save_checkpoint
 from .config import Stage1Config
 from .data import TrainingData
+from .row_adam import RowAdam
 from .evaluate import evaluate_views
 from .metrics_log import MetricsLog
 from .plan import Stage1Plan, StagePlan
@@ -75,6 +76,27 @@ class TrainedAvatar:
         return self.state.snapshot_at_pose(pose, frame_index, **self._meta())
 
 
+# scenes whose poses ``prepare`` fitted to more than one frame (meta["source"], scene_io)
+PREPARED_SOURCES = ("video", "folder")
+
+
+def refines_poses(scene: Scene, config: Stage1Config, training_frames: int) -> bool:
+    """Whether Stage I refines the frames' poses: asked for (``pose_refinement``), or a scene
+    ``prepare`` fitted to a video or a folder of frames (``pose_refinement_prepared``) with more
+    than one training frame (a single frame's correction is centred away, ``row_adam.py``)."""
+    if config.pose_refinement:
+        return True
+    return (config.pose_refinement_prepared and training_frames > 1
+            and scene.meta.get("source") in PREPARED_SOURCES)
+
+
+def _row_adam_state(saved: dict, frames: int) -> bool:
+    """Whether a saved pose optimiser state is RowAdam's for ``frames`` frames (a step count per
+    row), not the single Adam of runs before it."""
+    inner = saved.get("state") or {}
+    return all(torch.is_tensor(s.get("step")) and tuple(s["step"].shape) == (frames,) for s in inner.values())
+
+
 class Trainer:
     def __init__(self, scene: Scene, config: Stage1Config | None = None, run_dir: str | Path | None = None, *,
                  scene_spec: str | None = None,
@@ -106,10 +128,12 @@ class Trainer:
             if garment_layer is not None:
                 print(garment_layer.describe(), file=sys.stderr)
         model = AvatarModel(body, config.avatar, layer=garment_layer).to(self.device)
-        self.state = AvatarState(body, model, [f.pose for f in scene.frames], refine_poses=config.pose_refinement)
+        self.refines_poses = refines_poses(scene, config, len(training_frames))
+        self.state = AvatarState(body, model, [f.pose for f in scene.frames], refine_poses=self.refines_poses)
         self.background = torch.tensor(config.background, dtype=torch.float32, device=self.device)
-        self.pose_optimizer = (torch.optim.Adam([self.state.pose_delta], lr=config.lr_pose)
-                               if config.pose_refinement else None)
+        # one frame's correction per step: each row its own Adam (row_adam.py)
+        self.pose_optimizer = (RowAdam([self.state.pose_delta], lr=config.lr_pose, centre=config.pose_refinement_centre)
+                               if self.refines_poses else None)
         wanted = bool(config.lpips_backbone or config.lpips_lin)
         self.lpips, reason = load_lpips_or_none({"net": config.lpips_net, "backbone_path": config.lpips_backbone,
                                                  "lin_path": config.lpips_lin} if wanted else None)
@@ -421,8 +445,10 @@ class Trainer:
             self.optimizer.load_state_dict(state["optimizer"])
         except (RuntimeError, KeyError, ValueError) as exc:
             raise CheckpointError(f"{source}: does not fit this model ({exc})") from exc
-        if self.pose_optimizer is not None and state.get("pose_optimizer"):
-            self.pose_optimizer.load_state_dict(state["pose_optimizer"])
+        saved = state.get("pose_optimizer")
+        if self.pose_optimizer is not None and saved and _row_adam_state(saved, self.state.num_frames):
+            self.pose_optimizer.load_state_dict(saved)
+        # else the moments start again (a run from before RowAdam kept one Adam over all frames)
         self.step_count = int(state["step"])
         self.elapsed = float(state["elapsed"])
         self.stage_step = int(state["stage_step"])
