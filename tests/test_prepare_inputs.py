@@ -925,3 +925,38 @@ def test_the_people_picture_numbers_everyone_and_shows_the_chosen_one_in_full(tm
     tinted = [0.5 * grey + 0.5 * 255 * _TINTS[i] for i in range(3)]
     assert count(tinted[0]) > 200 and count(tinted[2]) > 200  # the others, tinted
     assert count(tinted[1]) == 0 and count(np.full(3, grey)) > 200  # the chosen one, as it is
+
+
+def test_a_long_video_and_a_folder_of_big_photos_are_resized_as_they_are_read(tmp_path, monkeypatch):
+    """Frames are resized (or cropped) one by one as they are decoded, not after the whole clip is
+    held at its own size: a 30-s 4K phone clip held whole is 22 GB. Measured with tracemalloc, which
+    sees numpy's buffers (not the video decoder's, so the clip's decoded frames are handed over as
+    fresh numpy copies): the peak stays near a few full-size frames, far below the input's size."""
+    import tracemalloc
+
+    import imageio.v3 as iio
+
+    from app.export import write_frames
+    from reconstruct.data.prepare.inputs import read_input
+
+    rng = np.random.default_rng(0)
+    base = rng.integers(0, 255, (720, 1280, 3), dtype=np.uint8)
+    clip = tmp_path / "clip.mp4"
+    write_frames([np.roll(base, 4 * k, axis=1) for k in range(40)], clip, 20)
+    decode = iio.imiter
+    monkeypatch.setattr(iio, "imiter", lambda *a, **k: (np.array(f) for f in decode(*a, **k)))
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    for k in range(24):
+        Image.fromarray(np.roll(base, 7 * k, axis=0)).resize((1600, 1200)).save(folder / f"img{k:02d}.jpg")
+    full_clip, full_folder = 40 * 720 * 1280 * 3, 24 * 1200 * 1600 * 3
+    for path, whole in ((clip, full_clip), (folder, full_folder)):
+        tracemalloc.start()
+        try:
+            video, names = read_input(path, max_side=64)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert video.frames.shape[0] == len(names) == (40 if path == clip else 24)
+        assert max(video.frames.shape[1:3]) == 64
+        assert peak < whole / 4, (path.name, peak, whole)

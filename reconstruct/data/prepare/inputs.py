@@ -183,17 +183,19 @@ def read_input(path: str | os.PathLike, *, max_side: int | None = 1920, every: i
     files = [path] if kind == "image" else list_images(path)[::every]
     if max_frames:
         files = files[:max_frames]
-    images = [np.ascontiguousarray(np.rot90(_read_image(f), turns % 4)) for f in files]
-    h, w = images[0].shape[:2]
-    for f, im in zip(files, images):
+    # each image transformed or resized as it is read: a folder of phone photos held at their own size
+    # (12 megapixels each) would not fit in memory
+    frames = []
+    for f in files:
+        im = np.ascontiguousarray(np.rot90(_read_image(f), turns % 4))
+        if not frames:
+            h, w = im.shape[:2]
+            size = working_size(w, h, max_side)
         if im.shape[:2] != (h, w):
             raise InputError(f"{f}: is {im.shape[1]}x{im.shape[0]} pixels, the folder's first image {files[0].name} "
                              f"is {w}x{h}; expected images of one size (frames of one camera)")
-    if transform is not None:
-        frames = np.stack([transform(im) for im in images]).astype(np.uint8)
-    else:
-        size = working_size(w, h, max_side)
-        frames = np.stack([_resize(im, size) for im in images]).astype(np.uint8)
+        frames.append(transform(im) if transform is not None else _resize(im, size))
+    frames = np.stack(frames).astype(np.uint8)
     return Video(frames, STILL_FPS, (w, h), np.arange(len(files)) * every), [f.name for f in files]
 
 

@@ -113,7 +113,15 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
                 frame = np.ascontiguousarray(np.rot90(frame, turns))
             if not frames:
                 first_size = frame.shape[:2]
-            frames.append(frame if transform is None else transform(frame))
+                ww, wh = working_size(first_size[1], first_size[0], max_size)
+            if transform is not None:
+                frame = transform(frame)
+            elif (ww, wh) != (frame.shape[1], frame.shape[0]):
+                # resized as decoded: a long 4K clip held at its own size would not fit in memory
+                frame = _resize(frame, ww, wh)
+                if decoder is not None:
+                    alphas[-1] = np.clip(_resize_alpha(alphas[-1], ww, wh), 0.0, 1.0)
+            frames.append(frame)
             indices.append(i)
             if max_frames and len(frames) >= max_frames:
                 break
@@ -122,10 +130,6 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
     if not frames:
         raise VideoError(f"{path}: holds no video frames ({expected})")
     h, w = first_size
-    ww, wh = working_size(w, h, max_size)
-    if transform is None and (ww, wh) != (w, h):
-        frames = [_resize(f, ww, wh) for f in frames]
-        alphas = [np.clip(_resize_alpha(a, ww, wh), 0.0, 1.0) for a in alphas]
     if not np.isfinite(fps) or fps <= 0:
         fps = 25.0
     alpha = None if not alphas or opaque else np.stack(alphas).astype(np.float32)
