@@ -381,3 +381,36 @@ def test_a_video_with_a_display_rotation_is_read_upright(tmp_path):
         assert np.abs(v.frames[0].astype(int) - reference).mean() < 1.0
     assert display_rotation(plain) == 0 and read_video(plain, max_size=None).frames.shape[1:3] == (48, 64)
     assert display_rotation(tmp_path / "missing.mp4") == 0
+
+
+def test_the_silhouette_gradient_frame_by_frame_is_the_whole_sum_s():
+    """``fit._silhouette_grads`` (each frame's graph back-propagated and freed on its own, then one
+    backward upstream) gives the parameters the gradient of the whole sum back-propagated at once
+    (float64; a toy chain with the fit's shapes: transforms and rest points shared by the frames)."""
+    import torch
+
+    from reconstruct.data.prepare.fit import _silhouette_grads
+
+    g = torch.Generator().manual_seed(0)
+    theta = torch.randn(5, 3, dtype=torch.float64, generator=g, requires_grad=True)
+    base = torch.randn(3, 4, 4, 4, dtype=torch.float64, generator=g)
+    pts = torch.randn(6, 3, dtype=torch.float64, generator=g)
+
+    def upstream():
+        Tr = base * torch.tanh(theta.sum()) + theta[:3, :1, None, None]  # (T=3,J=4,4,4)
+        rv = pts * theta[3] + theta[4] ** 2  # (N=6,3)
+        return Tr, rv
+
+    def frame_loss(i, Tr_i, rv):
+        return (torch.sin(Tr_i[:, :3, :3].sum(0) @ rv.T) ** 2).mean() * (i + 1)
+
+    Tr, rv = upstream()
+    whole = sum(frame_loss(i, Tr[i], rv) for i in range(3)) * 0.7 + (theta ** 2).sum()
+    (ref,) = torch.autograd.grad(whole, theta)
+    Tr, rv = upstream()
+    total, ends = _silhouette_grads(Tr, rv, frame_loss, 0.7)
+    other = (theta ** 2).sum()
+    torch.autograd.backward([other] + [t for t, _ in ends], [torch.ones_like(other)] + [d for _, d in ends])
+    assert len(ends) == 2
+    assert torch.allclose(theta.grad, ref, atol=1e-12, rtol=1e-10)
+    assert abs(total * 0.7 + float(other) - float(whole)) < 1e-12
