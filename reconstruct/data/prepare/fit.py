@@ -474,7 +474,8 @@ def _silhouette_grads(Tr: torch.Tensor, rv: torch.Tensor, frame_loss, weight: fl
     sum back-propagated one frame at a time into detached copies of ``Tr`` (T,J,4,4) and ``rv`` (N,3),
     paired with the tensors themselves for the caller's one backward through what they depend on.
     Each frame's render graph is freed after its own backward; held together until one backward, the
-    frames' graphs grew with the clip (6.6 GB for 600 frames)."""
+    frames' graphs grew with the clip (about 1 MB a frame at 128 px: prepare's peak on a 600-frame clip
+    went from 6.59 to 6.00 GB)."""
     Tr_d = Tr.detach().requires_grad_(Tr.requires_grad)
     rv_d = rv.detach().requires_grad_(rv.requires_grad)
     total = 0.0
