@@ -303,7 +303,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--gaussian-res", type=int, default=None, help="positional UV map resolution (one Gaussian per texel)")
     s.add_argument("--hidden", type=int, default=None, help="decoder width")
     s.add_argument("--eval-every", type=float, default=None, help="seconds of training between evaluations")
-    s.add_argument("--pose-refinement", action="store_true", help="optimise per-frame poses on any scene (scenes prepare made from a video or a folder of frames refine them by default; --set pose_refinement_prepared=false keeps them as fitted)")
+    s.add_argument("--pose-refinement", action="store_true",
+                   help="optimise per-frame poses on any scene (scenes prepare made from a video or a folder of "
+                        "frames refine them by default; --set pose_refinement_prepared=false keeps them as fitted)")
     s.add_argument("--holdout", type=int, default=None, metavar="K",
                    help="hold every K-th frame out of training for seen-view validation (default 8 for a scene "
                         "without evaluation views, e.g. your own video; 0 = off)")

@@ -61,7 +61,7 @@ def _describe_stage1(trainer) -> None:
     print(f"{trainer.state.num_gaussians} Gaussians, images {width}x{height}, {len(trainer.data)} training frames, "
           f"target {trainer.plan.describe()}", file=sys.stderr)
     if trainer.refines_poses and not trainer.config.pose_refinement:
-        print("pose refinement on: the frames' poses are prepare's fit of a video (--set "
+        print("pose refinement on: the frames' poses are prepare's fit of a video or a folder of frames (--set "
               "pose_refinement_prepared=false keeps them as fitted)", file=sys.stderr)
 
 

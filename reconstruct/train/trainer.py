@@ -39,10 +39,10 @@ from ..snapshot import Snapshot, SnapshotBox
 from .checkpoint import CHECKPOINT_NAME, CheckpointError, garment_layer_of, plain_scalars, save_checkpoint
 from .config import Stage1Config
 from .data import TrainingData
-from .row_adam import RowAdam
 from .evaluate import evaluate_views
 from .metrics_log import MetricsLog
 from .plan import Stage1Plan, StagePlan
+from .row_adam import RowAdam
 from .validation import holdout_frames, resolve_holdout, validate_frames
 
 GOOD_STATE_EVERY = 100  # steps between in-memory copies of the last good state

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .alpha_video import CUTOUT_BACKGROUND
-from .video import VIDEO_SUFFIXES, Video, VideoError, read_video, working_size
+from .video import VIDEO_SUFFIXES, Video, VideoError, read_video, resize_frame, working_size
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff", ".heic", ".heif", ".avif")
 HEIF_SUFFIXES = (".heic", ".heif")  # a phone's photos (read through pillow-heif's opener)
@@ -139,14 +139,6 @@ def _read_image(path: Path) -> np.ndarray:
     return _as_rgb(open_upright(path))
 
 
-def _resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    from PIL import Image
-
-    if (frame.shape[1], frame.shape[0]) == size:
-        return frame
-    return np.asarray(Image.fromarray(frame).resize(size, Image.Resampling.LANCZOS))
-
-
 def natural_key(name: str) -> list:
     """Sort key that orders the numbers in a name by value: frame2 before frame10 (exporters often
     number frames without leading zeros)."""
@@ -194,7 +186,7 @@ def read_input(path: str | os.PathLike, *, max_side: int | None = 1920, every: i
         if im.shape[:2] != (h, w):
             raise InputError(f"{f}: is {im.shape[1]}x{im.shape[0]} pixels, the folder's first image {files[0].name} "
                              f"is {w}x{h}; expected images of one size (frames of one camera)")
-        frames.append(transform(im) if transform is not None else _resize(im, size))
+        frames.append(transform(im) if transform is not None else resize_frame(im, *size))
     frames = np.stack(frames).astype(np.uint8)
     return Video(frames, STILL_FPS, (w, h), np.arange(len(files)) * every), [f.name for f in files]
 

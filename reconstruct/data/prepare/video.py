@@ -29,9 +29,12 @@ class Video:
     alpha: np.ndarray | None = None
 
 
-def _resize(frame: np.ndarray, width: int, height: int) -> np.ndarray:
+def resize_frame(frame: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(height,width,3) Lanczos resize of an RGB uint8 frame; the frame itself when it is that size."""
     from PIL import Image
 
+    if (frame.shape[1], frame.shape[0]) == (width, height):
+        return frame
     return np.asarray(Image.fromarray(frame).resize((width, height), Image.Resampling.LANCZOS))
 
 
@@ -118,7 +121,7 @@ def read_video(path: str | os.PathLike, *, max_size: int | None = 512, every: in
                 frame = transform(frame)
             elif (ww, wh) != (frame.shape[1], frame.shape[0]):
                 # resized as decoded: a long 4K clip held at its own size would not fit in memory
-                frame = _resize(frame, ww, wh)
+                frame = resize_frame(frame, ww, wh)
                 if decoder is not None:
                     alphas[-1] = np.clip(_resize_alpha(alphas[-1], ww, wh), 0.0, 1.0)
             frames.append(frame)
