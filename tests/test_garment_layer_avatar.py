@@ -17,6 +17,9 @@ from reconstruct.train.render import render_avatar
 
 
 def _config(**kw) -> AvatarConfig:
+    # every layer Gaussian its own decoder node unless a test says otherwise (the per-Gaussian
+    # checks below; the nodes are tested on their own)
+    kw.setdefault("garment_decode_every", 1)
     return AvatarConfig(gaussian_resolution=48, feature_resolution=32, feature_channels=8, pose_feature_channels=8,
                         hidden=32, **kw)
 
@@ -396,13 +399,19 @@ def test_opacity_prior_is_the_mean_transparency_and_raises_hidden_opacities(tiny
 
 def test_layer_step_sets_rows_and_columns(tiny_scene, tiny_config, body, monkeypatch):
     """``AvatarConfig.garment_layer_step``: metres between the layer's rows, the columns spaced alike
-    (64 at 2 cm, 92 at 1.4 cm), even, at least 16; out-of-range steps are a clear error."""
+    (64 at 2 cm, 92 at 1.4 cm, 128 at 1 cm), even, at least 16; out-of-range steps are a clear error;
+    a run recorded before the setting used 2 cm."""
     import dataclasses
 
     from reconstruct.avatar.garment_layer import layer_columns
+    from reconstruct.train.config import Stage1Config
 
-    assert AvatarConfig().garment_layer_step == 0.014
-    assert layer_columns(0.02) == 64 and layer_columns(0.014) == 92 and layer_columns(0.1) == 16
+    assert AvatarConfig().garment_layer_step == 0.010
+    assert layer_columns(0.02) == 64 and layer_columns(0.014) == 92 and layer_columns(0.010) == 128
+    assert layer_columns(0.1) == 16
+    old = Stage1Config().to_dict()
+    del old["avatar"]["garment_layer_step"]
+    assert Stage1Config.from_dict(old).avatar.garment_layer_step == 0.02
     assert all(layer_columns(s) % 2 == 0 for s in np.linspace(0.005, 0.1, 40))
     for bad in (0.001, 0.5):
         with pytest.raises(ValueError, match="garment_layer_step must be in"):
@@ -1213,6 +1222,21 @@ def test_a_layer_decoded_at_every_other_node_interpolates_its_outputs(body, laye
     assert float(m.layer_features.grad.abs().sum()) > 0
     with pytest.raises(ValueError, match="garment_decode_every must be an integer in"):
         _config(garment_decode_every=0)
+
+
+def test_the_layer_is_decoded_at_every_other_node_by_default_and_old_runs_keep_every_gaussian():
+    """A new run decodes its layer at every other row and column; a run recorded before the nodes
+    existed decoded every layer Gaussian, and its checkpoint's layer feature map has that shape."""
+    from reconstruct.train.config import Stage1Config
+
+    assert AvatarConfig().garment_decode_every == 2
+    assert Stage1Config().avatar.garment_decode_every == 2
+    old = Stage1Config().to_dict()
+    del old["avatar"]["garment_decode_every"]
+    assert Stage1Config.from_dict(old).avatar.garment_decode_every == 1
+    recorded = Stage1Config().to_dict()
+    recorded["avatar"]["garment_decode_every"] = 1
+    assert Stage1Config.from_dict(recorded).avatar.garment_decode_every == 1
 
 
 def _float64_inside(t, i: int) -> torch.Tensor:

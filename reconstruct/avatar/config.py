@@ -14,8 +14,9 @@ from dataclasses import dataclass
 SPLATS = ("disc", "sphere")
 GARMENT_LAYER_MODES = ("off", "auto", "on")
 DECODER_INITS = ("he", "torch")
-# metres between a garment layer's rows (docs/loose_clothing.md, "A finer layer")
-GARMENT_LAYER_STEP = 0.014
+# metres between a garment layer's rows (docs/loose_clothing.md, "A finer layer"; 1 cm since "Rows
+# every centimetre, decoded at every other one")
+GARMENT_LAYER_STEP = 0.010
 
 
 @dataclass
@@ -59,14 +60,16 @@ class AvatarConfig:
     # a layer Gaussian's opacity is sigmoid(gain x its parameter), the parameter trained at the
     # decoder's learning rate: the gain is the opacity logit's learning rate relative to the decoder's
     garment_opacity_gain: float = 10.0
-    # metres between the layer's rows; its columns are spaced alike round the hips (92 at 1.4 cm):
-    # rows every 2 cm (64 columns) could not carry a 4 cm check round to the unseen side
+    # metres between the layer's rows; its columns are spaced alike round the hips (128 at 1 cm, 92
+    # at 1.4 cm): rows every 2 cm (64 columns) could not carry a 4 cm check round to the unseen side
     garment_layer_step: float = GARMENT_LAYER_STEP
     # the layer's decoder runs at every k-th row and column of its grid, the Gaussians between
     # interpolating its outputs (layer_nodes.py; each keeps its own colour residual), as the body's
     # Gaussians interpolate its coarser decode map: a finer layer_step for the decoder cost of a
-    # coarser one. 1: every layer Gaussian is its own decoder evaluation
-    garment_decode_every: int = 1
+    # coarser one. 1: every layer Gaussian is its own decoder evaluation. 2 (default): a quarter of
+    # the decoder evaluations; with rows every 1 cm a step costs less than the 1.4 cm layer decoded
+    # at every Gaussian did (docs/loose_clothing.md, "Rows every centimetre, decoded at every other one")
+    garment_decode_every: int = 2
     # metres between the heights at which the layer's learned skinning has its own factors
     # (AvatarModel.layer_skin_weights; the rows between interpolate): one factor per row let the
     # hem rows, 5 mm apart, follow other bones than the row above and tear 5 cm off in the walk

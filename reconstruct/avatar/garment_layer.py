@@ -11,7 +11,7 @@ This layer adds Gaussians where the silhouette says there is something:
   polar radius round the slice's centre, ``body.slices.hull_polar_radii``: the convex envelope, so
   one ring spans both legs; rows past the covered body's end take the nearest full row's ring)
   plus a standoff growing from the top to the hem, never narrowing below the hips (cloth hangs);
-  rows every 1.4 cm (``AvatarConfig.garment_layer_step``), every 5 mm over the last 3 cm,
+  rows every 1 cm (``AvatarConfig.garment_layer_step``), every 5 mm over the last 3 cm,
   reaching 1 cm below the hint's hem (``row_heights``: the hem is an open edge);
 * skinning: each Gaussian takes a Gaussian-weighted average of the weights of the nearest body
   points (relative to the nearest), then the weights are diffused over the grid (a Gaussian filter,
@@ -447,13 +447,14 @@ def interpolation_matrix(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None = None,
                         row_step: float = GARMENT_LAYER_STEP,
                         hem_margin: float = 0.01, hem_band: float = 0.03, hem_step: float = 0.005,
-                        k: int = 24, sigma: float = 0.04, diffusion: tuple[float, float] = (3.0, 6.0),
+                        k: int = 24, sigma: float = 0.04, diffusion: tuple[float, float] | None = None,
                         stretch_blend: float = 0.10) -> GarmentLayer:
     """The garment layer of ``body`` in the region of ``hint`` (see the module docstring): one tube of
     ``cols`` columns (by default ``layer_columns(row_step)``), or with ``hint.two_legs`` one per
     leg (left then right, ``cols // 2`` each; each takes the torso and legs on its side of the midline, overlapping by 3 cm at the seat, and does
     not hang: it follows its leg). ``diffusion``: the weight filter's sigma in rows of ``row_step``
-    and in columns.
+    and in columns; by default ``weight_diffusion(row_step, cols)``, the same width in metres and
+    round the tube whatever the grid's spacing.
 
     The hem is an open edge inside the person's silhouette (the legs below it): a disc's scale is
     at least ``AvatarConfig.scale_floor`` times its grid step, so rows every 2 cm end the cloth in a
@@ -467,6 +468,7 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None =
     from ``stretch_blend`` metres."""
     tubes = hint.tubes
     cols = layer_columns(row_step) if cols is None else cols
+    diffusion = weight_diffusion(row_step, cols) if diffusion is None else diffusion
     if cols < 8 * tubes:
         raise ValueError(f"garment layer: need at least {8 * tubes} columns, found {cols}")
     if hem_margin < 0 or hem_band < 0 or hem_step <= 0:
@@ -996,6 +998,20 @@ LAYER_BONES = (*_TORSO_CHAIN, "upperarm01.L", "upperarm01.R", "upperleg01.L", "u
 def missing_layer_bones(body: BodyModel) -> list[str]:
     """The bones the layer is placed along (``LAYER_BONES``) that ``body`` lacks ([] for Anny)."""
     return [b for b in LAYER_BONES if b not in body.bone_labels]
+
+
+# the weight filter's sigma on the 1.4 cm grid it was tuned on (92 columns): 3 rows (4.2 cm) and 6
+# columns (a fifteenth of the way round)
+DIFFUSION_REFERENCE = (0.014, 92, 3.0, 6.0)
+
+
+def weight_diffusion(row_step: float, cols: int) -> tuple[float, float]:
+    """The layer's weight filter sigma (rows of ``row_step``, columns of ``cols`` round the layer)
+    that spans what it spans on the grid it was tuned on: kept in grid steps, rows every 1 cm
+    instead of 1.4 cm narrowed the blend by a third, and the walk stretched the coat's layer by
+    2.1 times instead of 1.6 (a chest-high layer; docs/loose_clothing.md, "Rows every centimetre")."""
+    step0, cols0, rows_sigma, cols_sigma = DIFFUSION_REFERENCE
+    return rows_sigma * (step0 / row_step), cols_sigma * (cols / cols0)
 
 
 def layer_columns(row_step: float) -> int:

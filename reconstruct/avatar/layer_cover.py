@@ -17,7 +17,7 @@ height is hidden by the row under it -- on the long-skirt photo, torso Gaussians
 row kept the blouse's colour and showed through the fading top as light blotches on the skirt's
 back) and no lower than the column's hem, the lowest row of the run of rows with opacity at least
 ``min_opacity`` that starts under the top row. The run crosses gaps of up to ``bridge_rows`` rows
-(2: 2.8 cm at the layer's 1.4 cm rows): a photo's layer has transparent specks where training
+(2: 2 cm at the layer's 1 cm rows, 2.8 cm at the 1.4 cm rows of before): a photo's layer has transparent specks where training
 emptied a Gaussian or two, at the waist and mid-column, and a speck ended its column's run there,
 so the whole body under the column took its own fill (the mirrored grey-skirt photo's thigh, skin
 down the skirt's side); an open coat's front is many rows without cloth. The body point must also

@@ -295,6 +295,10 @@ class Stage1Config(StageSettings):
             d["avatar"] = {**d["avatar"], "garment_clearance": 0.0}  # recorded before the layer kept clear of the body
         if isinstance(d.get("avatar"), dict) and "garment_stretch_scales" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "garment_stretch_scales": False}  # recorded before discs followed the pose's stretch
+        if isinstance(d.get("avatar"), dict) and "garment_layer_step" not in d["avatar"]:
+            d["avatar"] = {**d["avatar"], "garment_layer_step": 0.02}  # recorded before the rows' spacing was a setting
+        if isinstance(d.get("avatar"), dict) and "garment_decode_every" not in d["avatar"]:
+            d["avatar"] = {**d["avatar"], "garment_decode_every": 1}  # recorded before the layer's nodes existed
         if isinstance(d.get("avatar"), dict) and "garment_layer" not in d["avatar"]:
             d["avatar"] = {**d["avatar"], "garment_layer": "off"}  # recorded before the garment layer existed
         return super().from_dict(d)
