@@ -30,16 +30,21 @@ def body(tiny_scene):
     return tiny_scene.body_model()
 
 
+# the coarse grids below keep the weight filter of 3 rows and 6 columns they were measured with
+# (the default keeps its width in metres: on a 6-8 cm grid of 16 columns it would be under a row)
+COARSE_DIFFUSION = (3.0, 6.0)
+
+
 def _skirt(body):
     m = landmark_heights(body)
     return build_garment_layer(body, VolumeHint(top_z=m["waist"], hem_z=m["knee"] + 0.08, standoff_hem=0.05),
-                               cols=16, row_step=0.06)
+                               cols=16, row_step=0.06, diffusion=COARSE_DIFFUSION)
 
 
 def _trousers(body):
     m = landmark_heights(body)
     hint = VolumeHint(top_z=m["waist"], hem_z=m["ankle"] + 0.05, standoff_hem=0.05, two_legs=True)
-    return build_garment_layer(body, hint, cols=16, row_step=0.08)
+    return build_garment_layer(body, hint, cols=16, row_step=0.08, diffusion=COARSE_DIFFUSION)
 
 
 def _walk_pose(body, seed: int, amount: float = 0.5) -> BodyPose:

@@ -106,6 +106,20 @@ def test_hint_top_follows_the_torso_evidence(body):
     assert h.two_legs and h.top_z == waist
 
 
+def test_the_weight_filter_spans_the_same_cloth_whatever_the_grid():
+    """``weight_diffusion``: the filter tuned on the 1.4 cm grid (3 rows, 6 of 92 columns) exactly
+    there, and the same metres down the column and share of the way round on any other grid (at
+    1 cm in grid steps it was a third narrower, and the chest layer below stretched past 2 in the
+    walk)."""
+    from reconstruct.avatar.garment_layer import layer_columns, weight_diffusion
+
+    assert weight_diffusion(0.014, 92) == (3.0, 6.0)
+    for step in (0.010, 0.007, 0.02):
+        rows, cols = weight_diffusion(step, layer_columns(step))
+        assert rows * step == pytest.approx(3.0 * 0.014)
+        assert cols / layer_columns(step) == pytest.approx(6.0 / 92)
+
+
 def test_the_layer_over_the_chest_stands_off_the_torso_and_moves_with_it(body):
     m = landmark_heights(body)
     standoff = 0.02

@@ -64,7 +64,8 @@ def body(tiny_scene):
 def _model(body, clearance=CLEAR):
     m = landmark_heights(body)
     hint = VolumeHint(top_z=m["waist"], hem_z=m["knee"] + 0.08, standoff_hem=0.05)
-    layer = build_garment_layer(body, hint, cols=16, row_step=0.06)
+    # a coarse grid, with the weight filter of 3 rows and 6 columns it was measured with
+    layer = build_garment_layer(body, hint, cols=16, row_step=0.06, diffusion=(3.0, 6.0))
     cfg = AvatarConfig(gaussian_resolution=48, feature_resolution=32, feature_channels=8, pose_feature_channels=8,
                        hidden=32, garment_clearance=clearance)
     torch.manual_seed(0)
