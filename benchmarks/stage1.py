@@ -15,11 +15,11 @@ change of load on a shared machine hits both.
 
 The ``loose-*`` configurations train the wide-trousers scene (``clothing=wide_trousers``) with the
 current defaults: without the garment layer (``loose-off``), with its rows every 2 cm (the
-layer before, ``loose-2cm``), every 1.4 cm (the default, ``loose-1.4cm``) and every 1 cm
+layer before, ``loose-2cm``), every 1.4 cm (the default before, ``loose-1.4cm``) and every 1 cm
 (``loose-1cm``), every 7 mm decoded at every Gaussian (``loose-7mm``) or at every other row and
 column (``loose-7mm-every2``: the decoder cost of 1.4 cm, ``AvatarConfig.garment_decode_every``), and every
 1.4 cm or 1 cm decoded at every other row and column (``loose-1.4cm-every2``, ``loose-1cm-every2``;
-``loose-1.4cm`` decodes every layer Gaussian, as before the nodes were the default); what the layer
+``loose-1cm-every2`` is today's default layer, which ``coat`` and ``dress`` use); what the layer
 adds is its Gaussians, the alpha-against-mask loss, the spacing regulariser over its grid edges
 and its learned skinning with that prior (all in the pieces above, as in ``GivenViewStep``):
     python benchmarks/stage1.py --configs loose-off,loose-2cm,loose-1.4cm,loose-1cm,loose-7mm,loose-7mm-every2 --rounds 2
