@@ -7,9 +7,9 @@ import pytest
 from scipy import ndimage
 
 from reconstruct.appearance.cut_fill import FrameView
-from reconstruct.appearance.long_hair import (JOIN_REACH, down_the_middle, face_middle, falls_past_neck,
-                                              hair_back_colors, hair_rows, hung_from_above, middle_mean, share_near,
-                                              smooth_cover)
+from reconstruct.appearance.long_hair import (FACE_TOUCH, JOIN_REACH, down_the_middle, face_middle,
+                                              falls_past_neck, hair_back_colors, hair_region, hair_rows,
+                                              hung_from_above, middle_mean, share_near, smooth_cover)
 
 H, W = 130, 80
 CX = 40  # the face's middle column
@@ -121,9 +121,38 @@ def test_hair_below_a_hat_past_an_ear_joins_it():
     assert rows is not None and rows.end == 80
     gap = np.ptp(middle[:, 1])
     assert 4 < JOIN_REACH * gap  # the gap is within the reach
+    # past the reach, the hair below the hat still frames the face (it touches the face's hull)
     image, mask, seeds, middle, skin, shirt = _person(80, hat_gap=int(JOIN_REACH * gap) + 4)
     far = hair_rows(image, mask, seeds, middle, [skin, shirt], tolerance=TOL)
-    assert far is not None and far.end <= 14
+    assert far is not None and far.end == 80
+
+
+def _pieces(strand_col: int):
+    """Hair-coloured pixels: a hat (rows 2-10, holding the seeds) and a strand (rows 40-80, 4
+    columns from ``strand_col``), 30 rows apart; and a face's hull (rows 14-38, columns 30-49)."""
+    like = np.zeros((90, 80), bool)
+    like[2:11, 25:55] = True
+    like[40:81, strand_col:strand_col + 4] = True
+    face = np.zeros_like(like)
+    face[14:39, 30:50] = True
+    ys, xs = np.nonzero(like[:11])
+    return like, ~face, (xs, ys), face
+
+
+def test_a_strand_the_face_cuts_off_from_the_hair_is_hair_where_it_touches_the_face():
+    """Strands over a shoulder that a turned face cuts off from the hair above: a piece within
+    FACE_TOUCH pixels of the face's hull joins the hair however far it is from the seeds' pieces;
+    one a few pixels off the hull, or with no hull given, joins only within the reach."""
+    reach = 20 / JOIN_REACH  # a face height whose reach (20 px) falls short of the 30-row gap
+    like, allowed, seeds, face = _pieces(50)  # the strand's first column is the hull's last + 1
+    assert FACE_TOUCH >= 1
+    region = hair_region(like, allowed, seeds, reach, face)
+    assert region[40:81, 50:54].all() and region[2:11, 25:55].all()
+    assert not hair_region(like, allowed, seeds, reach)[40:81].any()  # no hull: the reach alone
+    like, allowed, seeds, face = _pieces(50 + FACE_TOUCH + 2)
+    assert not hair_region(like, allowed, seeds, reach, face)[40:81].any()
+    # within the reach it joins with or without the face
+    assert hair_region(like, allowed, seeds, 40 / JOIN_REACH)[40:81].any()
 
 
 def test_too_few_seeds_on_the_person_read_nothing():

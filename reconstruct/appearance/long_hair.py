@@ -18,8 +18,9 @@ a garment layer beside it, the forearms and hands). A share, not the nearest col
 buttons or the shadow between folded arms among the rivals do not take black hair from it, and a
 top in the hair's own colour does. Hair-coloured pixels are joined across one-pixel gaps; the
 pieces that hold ``SEED_SHARE`` of the seeds are the hair, with the pieces within ``JOIN_REACH``
-of the face's height of them (hair below a hat, past an ear), their holes filled (lit strands
-inside), less the face's middle (``face_middle``: by the body's geometry, not colour).
+of the face's height of them (hair below a hat, past an ear) and those touching the face's hull
+(``FACE_TOUCH``: strands a tilted face cuts off from the hair above), their holes filled (lit
+strands inside), less the face's middle (``face_middle``: by the body's geometry, not colour).
 
 **What it covers behind** (``HairRows``). Hair worn down covers, on each image row it reaches, the
 span its strands mark there -- symmetric about the face's middle column and as wide as the farther
@@ -72,6 +73,11 @@ RIVAL_RATIO = 3.0
 # joins the hair held by the seeds: a beanie held the coat photo's seeds, and her black hair below
 # it, past her ears, was a piece of its own
 JOIN_REACH = 0.5
+# pixels from the face's hull (``face_hull``, which is no hair) within which a piece of
+# hair-coloured pixels is hair framing the face, however far from the seeds' pieces: strands over
+# a shoulder that the face, turned or tilted, cuts off from the hair above it (the coat photo's
+# left strand, 16 px from her beret's piece in one run and 25 in another, the reach being 21)
+FACE_TOUCH = 2
 # the face's middle on the body's head, in shares of the head's height (canonical: facing -Y, +Z
 # up): within FACE_HALF_WIDTH either side of the nose (the head's foremost point), from FACE_BELOW
 # below it to FACE_ABOVE above it, in front of the head's centre -- eyes, nose, mouth and cheeks
@@ -207,11 +213,12 @@ def hair_coloured(image: np.ndarray, person: np.ndarray, seeds: np.ndarray, allo
 
 
 def hair_region(like: np.ndarray, allowed: np.ndarray, seed_px: tuple[np.ndarray, np.ndarray],
-                face_height: float) -> np.ndarray | None:
+                face_height: float, face: np.ndarray | None = None) -> np.ndarray | None:
     """(H,W) bool: the hair among the hair-coloured pixels ``like`` (module docstring): joined
     across one-pixel gaps, the pieces holding ``SEED_SHARE`` of the seeds (``seed_px``: their
-    (x, y) pixels) and those within ``JOIN_REACH`` of the ``face_height`` (pixels) of them, holes
-    filled, within ``allowed``; None when no piece holds enough seeds."""
+    (x, y) pixels), those within ``JOIN_REACH`` of the ``face_height`` (pixels) of them and, with
+    the face's hull ``face`` (H,W) bool, those within ``FACE_TOUCH`` pixels of it (hair framing the
+    face), holes filled, within ``allowed``; None when no piece holds enough seeds."""
     joined = ndimage.binary_closing(like, structure=np.ones((3, 3), bool)) & allowed | like
     labels, n = ndimage.label(joined, structure=np.ones((3, 3), bool))
     if n == 0:
@@ -227,6 +234,9 @@ def hair_region(like: np.ndarray, allowed: np.ndarray, seed_px: tuple[np.ndarray
     if reach > 0:
         near_kept = ndimage.binary_dilation(keep[labels], iterations=reach)
         keep[np.unique(labels[near_kept & (labels > 0)])] = True
+    if face is not None and face.any():
+        by_face = ndimage.binary_dilation(face, iterations=FACE_TOUCH, structure=np.ones((3, 3), bool))
+        keep[np.unique(labels[by_face & (labels > 0)])] = True
     return ndimage.binary_fill_holes(keep[labels]) & allowed
 
 
@@ -274,9 +284,10 @@ def hair_rows(image: np.ndarray, mask: np.ndarray, hair_uv: np.ndarray, face_uv:
     x, y = x[on], y[on]
     if len(x) < MIN_SEEDS:
         return None
-    allowed = person & ~face_hull(face_uv, person.shape)
+    hull = face_hull(face_uv, person.shape)
+    allowed = person & ~hull
     like = hair_coloured(image, person, image[y, x], allowed, rival_uvs, tolerance)
-    region = hair_region(like, allowed, (x, y), float(np.ptp(face_uv[:, 1])) if len(face_uv) else 0.0)
+    region = hair_region(like, allowed, (x, y), float(np.ptp(face_uv[:, 1])) if len(face_uv) else 0.0, hull)
     if region is None:
         return None
     return rows_of(region, image, person, float(np.median((face_uv if len(face_uv) else hair_uv)[:, 0])))
