@@ -153,6 +153,7 @@ def test_a_strand_the_face_cuts_off_from_the_hair_is_hair_where_it_touches_the_f
     assert not hair_region(like, allowed, seeds, reach, face)[40:81].any()
     # within the reach it joins with or without the face
     assert hair_region(like, allowed, seeds, 40 / JOIN_REACH)[40:81].any()
+    assert hair_region(like, allowed, seeds, 40 / JOIN_REACH, face)[40:81].any()
 
 
 def test_too_few_seeds_on_the_person_read_nothing():

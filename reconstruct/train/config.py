@@ -49,6 +49,19 @@ class StageSettings:
         return config_layer.from_dict(cls, d, cls.label + "training")
 
 
+# what a run recorded before each avatar setting existed trained with (``Stage1Config.from_dict``)
+AVATAR_BEFORE_SETTING = {
+    "color_residual_gain": 1.0,  # before the gain existed
+    "garment_skin_sectors": 1,  # before the sectors existed
+    "decoder_init": "torch",  # before the decoder's He init
+    "garment_clearance": 0.0,  # before the layer kept clear of the body
+    "garment_stretch_scales": False,  # before discs followed the pose's stretch
+    "garment_layer_step": 0.02,  # before the rows' spacing was a setting
+    "garment_decode_every": 1,  # before the layer's nodes existed
+    "garment_layer": "off",  # before the garment layer existed
+}
+
+
 @dataclass
 class Stage1Config(StageSettings):
     # loss weights (paper Appendix A.1.3)
@@ -285,22 +298,8 @@ class Stage1Config(StageSettings):
         d.setdefault("lr_layer_skinning", 0.0)  # recorded before the garment layer's skinning was learned
         d.setdefault("lambda_normal_prior", 0.0)  # recorded before frames without normal maps had a normal prior
         d.setdefault("lambda_layer_cover", 0.0)  # recorded before the layer's cover prior existed
-        if isinstance(d.get("avatar"), dict) and "color_residual_gain" not in d["avatar"]:
-            d["avatar"] = {**d["avatar"], "color_residual_gain": 1.0}  # recorded before the gain existed
-        if isinstance(d.get("avatar"), dict) and "garment_skin_sectors" not in d["avatar"]:
-            d["avatar"] = {**d["avatar"], "garment_skin_sectors": 1}  # recorded before the sectors existed
-        if isinstance(d.get("avatar"), dict) and "decoder_init" not in d["avatar"]:
-            d["avatar"] = {**d["avatar"], "decoder_init": "torch"}  # recorded before the decoder's He init
-        if isinstance(d.get("avatar"), dict) and "garment_clearance" not in d["avatar"]:
-            d["avatar"] = {**d["avatar"], "garment_clearance": 0.0}  # recorded before the layer kept clear of the body
-        if isinstance(d.get("avatar"), dict) and "garment_stretch_scales" not in d["avatar"]:
-            d["avatar"] = {**d["avatar"], "garment_stretch_scales": False}  # recorded before discs followed the pose's stretch
-        if isinstance(d.get("avatar"), dict) and "garment_layer_step" not in d["avatar"]:
-            d["avatar"] = {**d["avatar"], "garment_layer_step": 0.02}  # recorded before the rows' spacing was a setting
-        if isinstance(d.get("avatar"), dict) and "garment_decode_every" not in d["avatar"]:
-            d["avatar"] = {**d["avatar"], "garment_decode_every": 1}  # recorded before the layer's nodes existed
-        if isinstance(d.get("avatar"), dict) and "garment_layer" not in d["avatar"]:
-            d["avatar"] = {**d["avatar"], "garment_layer": "off"}  # recorded before the garment layer existed
+        if isinstance(d.get("avatar"), dict):  # avatar settings recorded before each existed
+            d["avatar"] = {**AVATAR_BEFORE_SETTING, **d["avatar"]}
         return super().from_dict(d)
 
 
