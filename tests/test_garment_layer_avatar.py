@@ -428,7 +428,46 @@ def test_layer_step_sets_rows_and_columns(tiny_scene, tiny_config, body, monkeyp
     cfg = dataclasses.replace(tiny_config, avatar=dataclasses.replace(tiny_config.avatar, garment_layer="auto",
                                                                       garment_layer_step=0.03))
     _trainer(tiny_scene, cfg, "config")
-    assert seen == {"row_step": 0.03}
+    assert seen == {"row_step": 0.03, "one_tube_filter": cfg.avatar.garment_filter_one_tube}
+
+
+def test_one_tube_filter_widens_a_one_tube_layers_blend_only(tiny_scene, tiny_config, body, monkeypatch):
+    """``AvatarConfig.garment_filter_one_tube``: a one-tube layer's (a skirt's) skinning weights are
+    filtered that many times wider than ``weight_diffusion``'s, so that they change less from
+    column to column and from row to row; a two-tube layer (trousers) is the same whatever it is.
+    Out-of-range values are a clear error; a run recorded before the setting used 1; the trainer
+    builds the layer with the config's value."""
+    import dataclasses
+
+    from reconstruct.train.config import Stage1Config
+
+    m = landmark_heights(body)
+    one = VolumeHint(top_z=m["waist"], hem_z=m["knee"] + 0.08, standoff_hem=0.05)
+    two = dataclasses.replace(one, two_legs=True)
+
+    def roughness(layer):  # mean change of the weights to the next column and to the next row
+        R, C = layer.grid_shape
+        w = layer.weights.double().reshape(R, C, -1)
+        return float((w - w.roll(1, 1)).abs().sum(-1).mean() + (w[1:] - w[:-1]).abs().sum(-1).mean())
+
+    narrow, wide = (build_garment_layer(body, one, cols=32, row_step=0.04, one_tube_filter=f) for f in (1.0, 2.0))
+    assert torch.allclose(wide.weights.sum(1), torch.ones(len(wide.weights), dtype=wide.weights.dtype), atol=1e-5)
+    assert roughness(wide) < 0.9 * roughness(narrow), (roughness(wide), roughness(narrow))  # 0.78 measured
+    assert torch.equal(narrow.positions, wide.positions)  # the filter moves no Gaussian
+    a, b = (build_garment_layer(body, two, cols=32, row_step=0.04, one_tube_filter=f) for f in (1.0, 2.0))
+    assert torch.equal(a.weights, b.weights)
+    for bad in (0.1, 5.0):
+        with pytest.raises(ValueError, match="garment_filter_one_tube must be in"):
+            AvatarConfig(garment_filter_one_tube=bad)
+    old = Stage1Config().to_dict()
+    del old["avatar"]["garment_filter_one_tube"]
+    assert Stage1Config.from_dict(old).avatar.garment_filter_one_tube == 1.0
+    seen = {}
+    monkeypatch.setattr("reconstruct.train.trainer.garment_layer_for", lambda *a, **k: seen.update(k) or None)
+    cfg = dataclasses.replace(tiny_config, avatar=dataclasses.replace(tiny_config.avatar, garment_layer="auto",
+                                                                      garment_filter_one_tube=1.7))
+    _trainer(tiny_scene, cfg, "config")
+    assert seen["one_tube_filter"] == 1.7
 
 
 def test_tight_runs_have_no_layer_terms(tiny_scene, tiny_config):

@@ -57,7 +57,7 @@ from ..body.lbs import Skinning
 from ..body.parts import PART_INDEX, PART_NAMES
 from ..body.pose import BodyPose
 from ..body.slices import hull_polar_radii, ring_directions
-from .config import GARMENT_LAYER_MODES, GARMENT_LAYER_STEP
+from .config import GARMENT_LAYER_MODES, GARMENT_LAYER_STEP, ONE_TUBE_FILTER
 
 _COVERED = ("torso", "thigh.L", "thigh.R", "shin.L", "shin.R")
 
@@ -448,13 +448,15 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None =
                         row_step: float = GARMENT_LAYER_STEP,
                         hem_margin: float = 0.01, hem_band: float = 0.03, hem_step: float = 0.005,
                         k: int = 24, sigma: float = 0.04, diffusion: tuple[float, float] | None = None,
-                        stretch_blend: float = 0.10) -> GarmentLayer:
+                        stretch_blend: float = 0.10, one_tube_filter: float = ONE_TUBE_FILTER) -> GarmentLayer:
     """The garment layer of ``body`` in the region of ``hint`` (see the module docstring): one tube of
     ``cols`` columns (by default ``layer_columns(row_step)``), or with ``hint.two_legs`` one per
     leg (left then right, ``cols // 2`` each; each takes the torso and legs on its side of the midline, overlapping by 3 cm at the seat, and does
     not hang: it follows its leg). ``diffusion``: the weight filter's sigma in rows of ``row_step``
     and in columns; by default ``weight_diffusion(row_step, cols)``, the same width in metres and
-    round the tube whatever the grid's spacing.
+    round the tube whatever the grid's spacing, times ``one_tube_filter`` for a one-tube layer
+    (``AvatarConfig.garment_filter_one_tube``: a coat, a skirt or a dress moves as one piece across
+    both legs; a trouser tube follows its own leg).
 
     The hem is an open edge inside the person's silhouette (the legs below it): a disc's scale is
     at least ``AvatarConfig.scale_floor`` times its grid step, so rows every 2 cm end the cloth in a
@@ -468,7 +470,10 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None =
     from ``stretch_blend`` metres."""
     tubes = hint.tubes
     cols = layer_columns(row_step) if cols is None else cols
-    diffusion = weight_diffusion(row_step, cols) if diffusion is None else diffusion
+    if diffusion is None:
+        diffusion = weight_diffusion(row_step, cols)
+        if tubes == 1:
+            diffusion = (diffusion[0] * one_tube_filter, diffusion[1] * one_tube_filter)
     if cols < 8 * tubes:
         raise ValueError(f"garment layer: need at least {8 * tubes} columns, found {cols}")
     if hem_margin < 0 or hem_band < 0 or hem_step <= 0:
@@ -1021,13 +1026,15 @@ def layer_columns(row_step: float) -> int:
 
 
 def garment_layer_for(body: BodyModel, frames, mode: str, what: str = "scene",
-                      row_step: float = GARMENT_LAYER_STEP) -> GarmentLayer | None:
+                      row_step: float = GARMENT_LAYER_STEP,
+                      one_tube_filter: float = ONE_TUBE_FILTER) -> GarmentLayer | None:
     """The layer a run asks for (``AvatarConfig.garment_layer``): ``off`` none; ``auto`` the layer of
     the masks' volume hint (``volume_hint_from_masks`` over ``frames``), none for tight clothing;
     ``on`` the same, an error when the masks show no loose clothing. A body without Anny's leg
     chain (``missing_layer_bones``: an SMPL body from a dataset loader) gets none with ``auto``
     and a clear error with ``on``. ``row_step``: metres between the layer's rows
-    (``AvatarConfig.garment_layer_step``; ``layer_columns`` round it). A one-tube layer is then
+    (``AvatarConfig.garment_layer_step``; ``layer_columns`` round it); ``one_tube_filter``: a
+    one-tube layer's weight filter against ``weight_diffusion`` (``build_garment_layer``). A one-tube layer is then
     stretched sideways row by row where the masks reach past it (``layer_profile.fit_side_profile``)."""
     if mode not in GARMENT_LAYER_MODES:
         raise ValueError(f"avatar.garment_layer must be one of {', '.join(GARMENT_LAYER_MODES)}, found {mode!r}")
@@ -1052,6 +1059,8 @@ def garment_layer_for(body: BodyModel, frames, mode: str, what: str = "scene",
         return None
     from .layer_profile import fit_side_profile  # it builds layers: imported here, not at the top
 
-    layer = build_garment_layer(body, hint, row_step=row_step)
-    fitted = fit_side_profile(body, hint, picked, row_step=row_step, layer=layer, silhouettes=silhouettes)
-    return layer if fitted is hint else build_garment_layer(body, fitted, row_step=row_step)
+    layer = build_garment_layer(body, hint, row_step=row_step, one_tube_filter=one_tube_filter)
+    fitted = fit_side_profile(body, hint, picked, row_step=row_step, layer=layer, silhouettes=silhouettes,
+                              one_tube_filter=one_tube_filter)
+    return layer if fitted is hint else build_garment_layer(body, fitted, row_step=row_step,
+                                                            one_tube_filter=one_tube_filter)

@@ -28,6 +28,7 @@ from scipy.ndimage import gaussian_filter1d
 from ..body.base import BodyModel
 from .garment_layer import (GARMENT_LAYER_STEP, GarmentLayer, VolumeHint, _run_around, body_silhouette,
                             build_garment_layer, spread_frames)
+from .config import ONE_TUBE_FILTER
 
 # metres a side must reach past the rings somewhere to be stretched: smaller gaps are left to the
 # Gaussians' learned offsets (stretched by 3-7 cm, the green-coat and green-jacket photos fitted
@@ -81,7 +82,7 @@ def fit_side_profile(body: BodyModel, hint: VolumeHint, frames, *, row_step: flo
                      max_frames: int = 8, iterations: int = 3, min_reach: float = MIN_SIDE_REACH,
                      max_reach: float = MAX_SIDE_REACH, min_gain: float = MIN_GAIN,
                      smooth_rows: float = 1.0, layer: GarmentLayer | None = None,
-                     silhouettes: list | None = None) -> VolumeHint:
+                     silhouettes: list | None = None, one_tube_filter: float = ONE_TUBE_FILTER) -> VolumeHint:
     """``hint`` with the ``side_profile`` that stretches its one-tube layer out to the masks of up to
     ``max_frames`` of ``frames`` spread evenly over the sequence; ``hint`` itself when neither side
     reaches ``min_reach`` anywhere, and for two-tube layers (trousers).
@@ -96,7 +97,8 @@ def fit_side_profile(body: BodyModel, hint: VolumeHint, frames, *, row_step: flo
     are clipped to ``max_reach``; a side that stays under ``min_reach`` is 0.
 
     ``layer``: ``hint``'s own layer, and ``silhouettes``: the posed body's in the frames
-    ``spread_frames`` picks, when the caller has them (``garment_layer_for``)."""
+    ``spread_frames`` picks, when the caller has them (``garment_layer_for``); ``one_tube_filter``:
+    the layers it builds are built with it (``build_garment_layer``)."""
     if hint.two_legs or not len(frames):
         return hint
     picked = spread_frames(frames, max_frames)
@@ -104,7 +106,7 @@ def fit_side_profile(body: BodyModel, hint: VolumeHint, frames, *, row_step: flo
 
     def need(h: VolumeHint, built: GarmentLayer | None = None) -> tuple[GarmentLayer, np.ndarray]:
         if built is None:
-            built = build_garment_layer(body, h, row_step=row_step)
+            built = build_garment_layer(body, h, row_step=row_step, one_tube_filter=one_tube_filter)
         reads = np.stack([frame_side_reach(body, built, f, s) for f, s in zip(picked, sils, strict=True)])
         seen = np.isfinite(reads)  # (F,R,2)
         med = np.nanmedian(np.where(seen.any(0), reads, 0.0), axis=0)  # rows no frame reads: 0, no warning

@@ -58,6 +58,7 @@ AVATAR_BEFORE_SETTING = {
     "garment_stretch_scales": False,  # before discs followed the pose's stretch
     "garment_layer_step": 0.02,  # before the rows' spacing was a setting
     "garment_decode_every": 1,  # before the layer's nodes existed
+    "garment_filter_one_tube": 1.0,  # before a one-tube layer's filter had its own width
     "garment_layer": "off",  # before the garment layer existed
 }
 

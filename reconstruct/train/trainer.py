@@ -124,7 +124,8 @@ class Trainer:
                                  f"found {garment_layer!r}")
             garment_layer = garment_layer_for(body, [scene.frames[i] for i in training_frames],
                                               config.avatar.garment_layer, f"scene {scene.name}",
-                                              row_step=config.avatar.garment_layer_step)
+                                              row_step=config.avatar.garment_layer_step,
+                                              one_tube_filter=config.avatar.garment_filter_one_tube)
             if garment_layer is not None:
                 print(garment_layer.describe(), file=sys.stderr)
         model = AvatarModel(body, config.avatar, layer=garment_layer).to(self.device)
