@@ -400,7 +400,8 @@ def test_opacity_prior_is_the_mean_transparency_and_raises_hidden_opacities(tiny
 def test_layer_step_sets_rows_and_columns(tiny_scene, tiny_config, body, monkeypatch):
     """``AvatarConfig.garment_layer_step``: metres between the layer's rows, the columns spaced alike
     (64 at 2 cm, 92 at 1.4 cm, 128 at 1 cm), even, at least 16; out-of-range steps are a clear error;
-    a run recorded before the setting used 2 cm."""
+    a run recorded before the setting used 2 cm. The trainer builds the layer at the config's step
+    and one-tube filter (``garment_filter_one_tube``)."""
     import dataclasses
 
     from reconstruct.avatar.garment_layer import layer_columns
@@ -426,17 +427,18 @@ def test_layer_step_sets_rows_and_columns(tiny_scene, tiny_config, body, monkeyp
     seen = {}
     monkeypatch.setattr("reconstruct.train.trainer.garment_layer_for", lambda *a, **k: seen.update(k) or None)
     cfg = dataclasses.replace(tiny_config, avatar=dataclasses.replace(tiny_config.avatar, garment_layer="auto",
-                                                                      garment_layer_step=0.03))
+                                                                      garment_layer_step=0.03,
+                                                                      garment_filter_one_tube=1.7))
     _trainer(tiny_scene, cfg, "config")
-    assert seen == {"row_step": 0.03, "one_tube_filter": cfg.avatar.garment_filter_one_tube}
+    assert seen == {"row_step": 0.03, "one_tube_filter": 1.7}
 
 
-def test_one_tube_filter_widens_a_one_tube_layers_blend_only(tiny_scene, tiny_config, body, monkeypatch):
+def test_one_tube_filter_widens_a_one_tube_layers_blend_only(body):
     """``AvatarConfig.garment_filter_one_tube``: a one-tube layer's (a skirt's) skinning weights are
     filtered that many times wider than ``weight_diffusion``'s, so that they change less from
     column to column and from row to row; a two-tube layer (trousers) is the same whatever it is.
-    Out-of-range values are a clear error; a run recorded before the setting used 1; the trainer
-    builds the layer with the config's value."""
+    Out-of-range values are a clear error; a run recorded before the setting used 1 (that the
+    trainer passes the config's value: ``test_layer_step_sets_rows_and_columns``)."""
     import dataclasses
 
     from reconstruct.train.config import Stage1Config
@@ -462,12 +464,6 @@ def test_one_tube_filter_widens_a_one_tube_layers_blend_only(tiny_scene, tiny_co
     old = Stage1Config().to_dict()
     del old["avatar"]["garment_filter_one_tube"]
     assert Stage1Config.from_dict(old).avatar.garment_filter_one_tube == 1.0
-    seen = {}
-    monkeypatch.setattr("reconstruct.train.trainer.garment_layer_for", lambda *a, **k: seen.update(k) or None)
-    cfg = dataclasses.replace(tiny_config, avatar=dataclasses.replace(tiny_config.avatar, garment_layer="auto",
-                                                                      garment_filter_one_tube=1.7))
-    _trainer(tiny_scene, cfg, "config")
-    assert seen["one_tube_filter"] == 1.7
 
 
 def test_tight_runs_have_no_layer_terms(tiny_scene, tiny_config):

@@ -471,9 +471,7 @@ def build_garment_layer(body: BodyModel, hint: VolumeHint, *, cols: int | None =
     tubes = hint.tubes
     cols = layer_columns(row_step) if cols is None else cols
     if diffusion is None:
-        diffusion = weight_diffusion(row_step, cols)
-        if tubes == 1:
-            diffusion = (diffusion[0] * one_tube_filter, diffusion[1] * one_tube_filter)
+        diffusion = weight_diffusion(row_step, cols, one_tube_filter if tubes == 1 else 1.0)
     if cols < 8 * tubes:
         raise ValueError(f"garment layer: need at least {8 * tubes} columns, found {cols}")
     if hem_margin < 0 or hem_band < 0 or hem_step <= 0:
@@ -1010,13 +1008,15 @@ def missing_layer_bones(body: BodyModel) -> list[str]:
 DIFFUSION_REFERENCE = (0.014, 92, 3.0, 6.0)
 
 
-def weight_diffusion(row_step: float, cols: int) -> tuple[float, float]:
+def weight_diffusion(row_step: float, cols: int, width: float = 1.0) -> tuple[float, float]:
     """The layer's weight filter sigma (rows of ``row_step``, columns of ``cols`` round the layer)
     that spans what it spans on the grid it was tuned on: kept in grid steps, rows every 1 cm
     instead of 1.4 cm narrowed the blend by a third, and the walk stretched the coat's layer by
-    2.1 times instead of 1.6 (a chest-high layer; docs/loose_clothing.md, "Rows every centimetre")."""
+    2.1 times instead of 1.6 (a chest-high layer; docs/loose_clothing.md, "Rows every centimetre").
+    ``width``: that many times wider in rows and columns alike (a one-tube layer's
+    ``AvatarConfig.garment_filter_one_tube``)."""
     step0, cols0, rows_sigma, cols_sigma = DIFFUSION_REFERENCE
-    return rows_sigma * (step0 / row_step), cols_sigma * (cols / cols0)
+    return rows_sigma * (step0 / row_step) * width, cols_sigma * (cols / cols0) * width
 
 
 def layer_columns(row_step: float) -> int:
